@@ -1,0 +1,2 @@
+"""drape: draping simulation of woven composite fabrics."""
+__version__ = "0.1.0"

@@ -1,0 +1,65 @@
+"""The ``drape`` command: one subcommand per job, each in its own module.
+
+Exit codes: 0 success, 2 bad input (nothing computed), 1 a run that failed after it started
+(results up to the last converged step kept). Errors are one clear message, no traceback
+(set DRAPE_DEBUG=1 to see one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+from drape import __version__
+from drape.errors import EXIT_BAD_INPUT, EXIT_RUN_FAILED, InputError, RunFailed
+
+#: subcommand -> module providing ``add_arguments(parser)``, ``main(args)`` and ``HELP``.
+#: Modules are imported only for the subcommand that runs (dolfinx takes seconds to import).
+SUBCOMMANDS = {
+    "picture-frame": "drape.picture_frame",
+}
+
+DESCRIPTION = """\
+drape simulates the forming (draping) of woven composite fabrics with the nested-surface
+elasto-plastic shear law, on FEniCSx. Subcommands:
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="drape", description=DESCRIPTION,
+                             formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"drape {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, module_name in SUBCOMMANDS.items():
+        module = importlib.import_module(module_name)
+        command = sub.add_parser(name, help=module.HELP, description=module.__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.add_arguments(command)
+        command.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return EXIT_BAD_INPUT
+    try:
+        return args._module.main(args) or 0
+    except InputError as error:
+        if os.environ.get("DRAPE_DEBUG"):
+            raise
+        print(f"drape {args.command}: error: {error.message}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except RunFailed as error:
+        if os.environ.get("DRAPE_DEBUG"):
+            raise
+        print(f"drape {args.command}: run failed: {error}", file=sys.stderr)
+        return EXIT_RUN_FAILED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,55 @@
+"""The two kinds of failure drape reports, and the exit codes the CLI gives them.
+
+* :class:`InputError` -- the input is wrong (a config key misspelt, a value out of range, a
+  missing file, a mesh gmsh cannot build). Nothing has been computed yet. Exit code 2.
+* :class:`RunFailed` -- a run that had started could not go on (the solver did not converge
+  even at the smallest step). Results up to the last converged step are kept. Exit code 1.
+"""
+
+from __future__ import annotations
+
+EXIT_OK = 0
+EXIT_RUN_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+_UNSET = object()
+
+
+class InputError(Exception):
+    """Bad input, with where it is (file, key), what it is (value) and what was expected."""
+
+    def __init__(self, problem: str, *, source: str | None = None, key: str | None = None,
+                 value: object = _UNSET, expected: str | None = None):
+        self.problem = problem
+        self.source = source
+        self.key = key
+        self.value = value
+        self.expected = expected
+        super().__init__(self.message)
+
+    @property
+    def message(self) -> str:
+        where = []
+        if self.source:
+            where.append(str(self.source))
+        if self.key:
+            where.append(f"key '{self.key}'")
+        text = ": ".join(where)
+        if self.value is not _UNSET:
+            text += f" = {self.value!r}" if text else f"value {self.value!r}"
+        text = f"{text}: {self.problem}" if text else self.problem
+        if self.expected:
+            text += f"; expected {self.expected}"
+        return text
+
+    def located(self, source: str | None = None, prefix: str | None = None) -> "InputError":
+        """The same error with its file set (if unset) and its key prefixed by a section."""
+        key = self.key
+        if prefix:
+            key = f"{prefix}.{key}" if key else prefix
+        return InputError(self.problem, source=self.source or source, key=key,
+                          value=self.value, expected=self.expected)
+
+
+class RunFailed(Exception):
+    """A run that started and could not finish; what converged so far has been written."""

@@ -1,0 +1,192 @@
+"""Drive one material point through a picture-frame shear history (the paper's section 5).
+
+The frame imposes F = cos(gt/2)(G1G1 + G2G2) + sin(gt/2)(G1G2 + G2G1), so C11 = C22 = 1 and
+C12 = sin(gt): each row of the history is one increment of the law (no sub-stepping), so a
+history file reproduces a result exactly. Writes a CSV (gamma_t_deg, tau, gamma_p_deg,
+active_surface, ...) and a PNG of tau against the shear angle; by default the one-surface
+model (the paper's figure 6) is drawn on the same history beside the nested-surface one
+(figure 8).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+from drape.errors import InputError
+from drape.law.nested_surface import LawState, NestedSurfaceLaw
+from drape.law.parameters import MaterialParameters, load_material
+
+HELP = "drive one material point through a picture-frame shear history (CSV + PNG)"
+DEFAULT_CYCLES = "10,20,30,40,-40"
+
+
+# --- histories ---------------------------------------------------------------------------------
+
+def cyclic_history(amplitudes_deg, increment_deg: float) -> np.ndarray:
+    """Shear angles (deg) of cycles 0 -> A -> 0 for each amplitude A, in equal increments of at
+    most ``increment_deg``. The initial 0 is the virgin state and is not part of the history."""
+    if not increment_deg > 0:
+        raise InputError("increment must be positive", key="--increment", value=increment_deg,
+                         expected="a shear-angle increment > 0 in degrees, e.g. 0.25")
+    angles = [0.0]
+    for amplitude in amplitudes_deg:
+        for target in (amplitude, 0.0):
+            steps = max(1, math.ceil(abs(target - angles[-1]) / increment_deg - 1e-9))
+            angles.extend(np.linspace(angles[-1], target, steps + 1)[1:])
+    return np.asarray(angles[1:])
+
+
+def parse_cycles(text: str) -> list[float]:
+    """'10,20,-40' -> [10.0, 20.0, -40.0], each |A| < 90 deg."""
+    try:
+        amplitudes = [float(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise InputError("not a list of numbers", key="--cycles", value=text,
+                         expected="comma-separated amplitudes in degrees, e.g. 10,20,30,40,-40") from None
+    if not amplitudes or any(not math.isfinite(a) or a == 0 or abs(a) >= 90 for a in amplitudes):
+        raise InputError("amplitudes must be non-zero and within (-90, 90) deg", key="--cycles",
+                         value=text, expected="e.g. 10,20,30,40,-40")
+    return amplitudes
+
+
+def read_history(path: str | Path) -> np.ndarray:
+    """Shear angles (deg) from a CSV file with a header ``gamma_t_deg``, one row per increment."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", source=str(path),
+                         expected="a CSV file with a header 'gamma_t_deg' and one angle per row")
+    with path.open(newline="") as stream:
+        reader = csv.DictReader(stream)
+        if not reader.fieldnames or "gamma_t_deg" not in [f.strip() for f in reader.fieldnames]:
+            raise InputError("no 'gamma_t_deg' column", source=str(path), value=reader.fieldnames,
+                             expected="a header line naming the column gamma_t_deg")
+        column = next(f for f in reader.fieldnames if f.strip() == "gamma_t_deg")
+        angles = []
+        for line, row in enumerate(reader, start=2):
+            text = (row.get(column) or "").strip()
+            try:
+                value = float(text)
+            except ValueError:
+                value = math.nan
+            if not math.isfinite(value) or abs(value) >= 90:
+                raise InputError(f"line {line}: not a shear angle", source=str(path), value=text,
+                                 expected="a number of degrees within (-90, 90)")
+            angles.append(value)
+    if not angles:
+        raise InputError("no rows", source=str(path), expected="at least one shear angle")
+    return np.asarray(angles)
+
+
+# --- the driver --------------------------------------------------------------------------------
+
+def drive(params: MaterialParameters, history_deg) -> dict[str, np.ndarray]:
+    """Run the law through the history, one increment per angle; return the columns."""
+    law = NestedSurfaceLaw(params)
+    state = LawState.virgin(1, params.n)
+    history = np.asarray(history_deg, dtype=float)
+    columns = {name: np.empty(history.size) for name in
+               ("gamma_t_deg", "tau", "gamma_p_deg", "dtau_dC12", "gamma_max_deg")}
+    columns["active_surface"] = np.empty(history.size, dtype=int)
+    centres = np.empty((params.n, history.size))
+    one = np.ones(1)
+    for i, angle in enumerate(history):
+        response = law.update(state, one, one, np.sin(np.radians([angle])))
+        state = response.trial
+        columns["gamma_t_deg"][i] = angle
+        columns["tau"][i] = response.tau[0]
+        columns["gamma_p_deg"][i] = np.degrees(state.gamma_p[0])
+        columns["dtau_dC12"][i] = response.dtau_dC12[0]
+        columns["gamma_max_deg"][i] = state.gamma_max_deg[0]
+        columns["active_surface"][i] = response.active_surface[0]
+        centres[:, i] = state.centres[:, 0]
+    for k in range(params.n):
+        columns[f"centre_{k + 1}"] = centres[k]
+    return columns
+
+
+def write_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
+    names = list(columns)
+    with path.open("w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(names)
+        for row in zip(*(columns[n] for n in names)):
+            writer.writerow([v if isinstance(v, (int, np.integer)) else repr(float(v)) for v in row])
+
+
+def plot(path: Path, curves: list[tuple[str, dict[str, np.ndarray]]], title: str) -> None:
+    """tau against gamma_t for each (label, columns), the first drawn boldest."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
+    styles = [dict(color="tab:blue", lw=1.8), dict(color="tab:orange", lw=1.2, ls="--")]
+    for (label, columns), style in zip(curves, styles * len(curves)):
+        ax.plot(columns["gamma_t_deg"], columns["tau"], label=label, **style)
+    ax.axhline(0.0, color="0.6", lw=0.6)
+    ax.axvline(0.0, color="0.6", lw=0.6)
+    ax.set_xlabel(r"shear angle $\gamma_t$ (deg)")
+    ax.set_ylabel(r"projected shear stress $\tau$ (N/mm)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+# --- command line ------------------------------------------------------------------------------
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--material", default=None, metavar="FILE",
+                        help="material TOML file (default: the paper's three-surface model, "
+                             "Tables 1-3, as in configs/materials/paper_three_surface.toml)")
+    parser.add_argument("--surfaces", type=int, default=None, metavar="N",
+                        help="keep only the outer surface and the first N inner ones "
+                             "(0: the one-surface model; default: all in the file)")
+    history = parser.add_mutually_exclusive_group()
+    history.add_argument("--cycles", default=None, metavar="A1,A2,...",
+                         help=f"cycles 0 -> A -> 0 for each amplitude A in degrees "
+                              f"(default {DEFAULT_CYCLES})")
+    history.add_argument("--history", default=None, metavar="CSV",
+                         help="CSV file with a header gamma_t_deg, one increment per row")
+    parser.add_argument("--increment", type=float, default=0.1, metavar="DEG",
+                        help="largest shear-angle increment of --cycles, degrees (default 0.1)")
+    parser.add_argument("--no-compare", action="store_true",
+                        help="do not draw the one-surface model on the same history")
+    parser.add_argument("--output", default="results/picture-frame", metavar="DIR",
+                        help="folder for picture_frame.csv and picture_frame.png "
+                             "(default results/picture-frame)")
+
+
+def main(args) -> int:
+    if args.material is None:
+        params = MaterialParameters()
+        if args.surfaces is not None:
+            params = params.with_surfaces(args.surfaces)
+    else:
+        params = load_material(args.material, surfaces=args.surfaces)
+    if args.history is not None:
+        history = read_history(args.history)
+    else:
+        history = cyclic_history(parse_cycles(args.cycles or DEFAULT_CYCLES), args.increment)
+    output = Path(args.output)
+    output.mkdir(parents=True, exist_ok=True)
+
+    columns = drive(params, history)
+    write_csv(output / "picture_frame.csv", columns)
+    label = "one surface" if params.n == 0 else f"{params.n + 1} nested surfaces"
+    curves = [(f"{label} ({params.name})", columns)]
+    if params.n > 0 and not args.no_compare:
+        single = drive(params.with_surfaces(0), history)
+        write_csv(output / "picture_frame_one_surface.csv", single)
+        curves.append(("one surface (same outer surface)", single))
+    plot(output / "picture_frame.png", curves, f"Picture frame, {len(history)} increments")
+    print(f"drape picture-frame: {len(history)} increments, tau in "
+          f"[{columns['tau'].min():.4g}, {columns['tau'].max():.4g}] N/mm; wrote "
+          f"{output / 'picture_frame.csv'} and {output / 'picture_frame.png'}")
+    return 0

@@ -1,0 +1,1 @@
+"""gmsh builders of the blank and the rigid forming tools."""

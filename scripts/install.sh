@@ -1,0 +1,58 @@
+#!/usr/bin/env bash
+# Install drape on Debian bookworm (a machine, a CI runner or the Docker image).
+#
+#  1. Debian's packages with apt: the FEniCSx stack (python3-dolfinx 0.5.2 and its PETSc,
+#     MPI and gmsh) and the Python libraries drape uses. Skipped when all are installed.
+#  2. A virtual environment that sees Debian's packages (--system-site-packages; Debian's
+#     dolfinx belongs to /usr/bin/python3) holding drape itself, editable, with no download.
+#
+# Idempotent: a second run checks and returns in about a second.
+# Environment: DRAPE_VENV (default: <repo>/.venv), DRAPE_EDITABLE=0 for a plain install.
+set -euo pipefail
+
+repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+venv=${DRAPE_VENV:-$repo/.venv}
+
+apt_packages=(
+  python3-dolfinx python3-petsc4py python3-mpi4py python3-gmsh
+  python3-numpy python3-scipy python3-matplotlib
+  python3-pytest python3-pytest-timeout python3-hypothesis
+  python3-venv python3-pip python3-setuptools python3-wheel
+  openmpi-bin
+)
+
+missing=()
+for pkg in "${apt_packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$pkg")
+  fi
+done
+
+if ((${#missing[@]})); then
+  echo "drape install: installing Debian packages: ${missing[*]}"
+  sudo=()
+  if [ "$(id -u)" -ne 0 ]; then
+    command -v sudo >/dev/null || { echo "drape install: need root or sudo for apt-get" >&2; exit 1; }
+    sudo=(sudo)
+  fi
+  "${sudo[@]}" apt-get update -q
+  "${sudo[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends "${missing[@]}"
+fi
+
+if [ ! -x "$venv/bin/python" ]; then
+  echo "drape install: creating $venv (sees Debian's packages)"
+  /usr/bin/python3 -m venv --system-site-packages "$venv"
+fi
+
+# Reinstall drape only when its packaging changed (or it is not importable).
+stamp="$venv/.drape-installed"
+if [ ! -f "$stamp" ] || [ "$repo/pyproject.toml" -nt "$stamp" ] \
+   || ! (cd / && "$venv/bin/python" -c "import drape, drape.geometry" 2>/dev/null); then
+  echo "drape install: installing drape into $venv"
+  mode=(-e)
+  [ "${DRAPE_EDITABLE:-1}" = 0 ] && mode=()
+  "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation --no-index "${mode[@]}" "$repo"
+  touch "$stamp"
+fi
+
+(cd / && "$venv/bin/python" -c "import dolfinx, drape; print('drape install: ok, dolfinx', dolfinx.__version__, 'in', '$venv')")

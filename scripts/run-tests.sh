@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Install what is needed (idempotent) and run the whole test suite: serially, then under
+# `mpirun -n 2` (tests marked `serial` are skipped there). Extra arguments go to pytest.
+set -euo pipefail
+repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+"$repo/scripts/install.sh"
+cd "$repo"
+export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
+export OMPI_MCA_rmaps_base_oversubscribe=1
+python=.venv/bin/python
+
+echo "== tests, serial"
+"$python" -m pytest -q "$@"
+
+echo "== tests, mpirun -n 2 (rank 0 shown; rank 1 shown if it fails)"
+log=$(mktemp)
+trap 'rm -f "$log"' EXIT
+if ! mpirun -n 2 bash -c '
+    if [ "${OMPI_COMM_WORLD_RANK:-0}" = 0 ]; then
+      exec "$0" -m pytest -q -p no:cacheprovider "${@:2}"
+    else
+      exec "$0" -m pytest -q -p no:cacheprovider "${@:2}" >"$1" 2>&1
+    fi' "$python" "$log" "$@"; then
+  echo "== rank 1 output:"
+  cat "$log"
+  exit 1
+fi
