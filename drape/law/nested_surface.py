@@ -116,9 +116,9 @@ class _Chain:
     outside in). Lists are indexed by surface; entries are arrays over the group's points.
     """
 
-    def __init__(self, law, x, a, fixed, top, derivatives):
-        q, dq = _power_series(law.q_coefficients, x, derivatives)
-        alpha, dalpha = _power_series(law.alpha_coefficients, x, derivatives)
+    def __init__(self, law, polynomials, a, fixed, top):
+        q, dq, alpha, dalpha = polynomials
+        derivatives = dq is not None
         self.alpha, self.dalpha = alpha, dalpha
         self.c, self.r = [q], [law.sy[0] + alpha]
         self.dc, self.dr = [dq], [dalpha]
@@ -163,6 +163,12 @@ class NestedSurfaceLaw:
         self.a_columns = params.a_rows().T[1:].copy()   # (n, rows): a_1..a_n by Table-2 row
         self.h_columns = params.h_rows().T[1:].copy()
 
+    def polynomials(self, x, derivatives=True):
+        """q(x), q'(x), alpha(x), alpha'(x) (the slopes None unless asked)."""
+        q, dq = _power_series(self.q_coefficients, x, derivatives)
+        alpha, dalpha = _power_series(self.alpha_coefficients, x, derivatives)
+        return q, dq, alpha, dalpha
+
     def _table(self, gamma_max_deg):
         """a_k and h_k (k = 1..n) of each point's Table-2 row, as lists of arrays."""
         if self.n == 0:
@@ -191,7 +197,7 @@ class NestedSurfaceLaw:
         gp0 = state.gamma_p
 
         # 1. carry the committed centres at gp0 (the radii may have changed with the row)
-        chain = _Chain(self, gp0, a, list(state.centres), n, derivatives=False)
+        chain = _Chain(self, self.polynomials(gp0, derivatives=False), a, state.centres, n)
         # 2. elastic trial against the innermost surface, with a round-off allowance so that
         #    re-evaluating a converged state on a surface stays elastic
         sin_gp0 = np.sin(gp0)
@@ -246,6 +252,7 @@ class _PlasticGroup:
         self.centres = np.empty((n, m))
         self.tangent = np.empty(m)
         self.done = np.zeros(m, dtype=bool)
+        self._cache = []
         for _ in range(_MAX_RESTARTS):
             for k in range(n, -1, -1):
                 points = np.nonzero((self.active == k) & ~self.done)[0]
@@ -259,11 +266,22 @@ class _PlasticGroup:
                 self._finish(k, points, self.x_start[points])
 
     # -- surfaces of a group of points ---------------------------------------------------------
+    def _polynomials(self, points, x, derivatives):
+        """The law's polynomials at x for these points, remembered: the same angles are visited
+        several times (start of an increment, its solution) by different checks."""
+        for cached_points, cached_x, values in self._cache:
+            if (cached_x.shape == x.shape and (values[1] is not None or not derivatives)
+                    and np.array_equal(cached_x, x) and np.array_equal(cached_points, points)):
+                return values
+        values = self.law.polynomials(x, derivatives)
+        self._cache = [(points, x, values)] + self._cache[:3]
+        return values
+
     def _chain(self, k, points, x, derivatives=True, fixed=None):
         """Surfaces 0..k-1 where they are carried, and surface k's radius, at gp = x."""
         a = [col[points] for col in self.a]
         fixed = self.fixed[:, points] if fixed is None else fixed
-        chain = _Chain(self.law, x, a, fixed, k - 1, derivatives)
+        chain = _Chain(self.law, self._polynomials(points, x, derivatives), a, fixed, k - 1)
         if k >= 1:
             chain.append_radius(self.law, k, a[k - 1])
         return chain
