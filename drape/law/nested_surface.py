@@ -162,6 +162,7 @@ class NestedSurfaceLaw:
         self.row_bounds_deg = np.asarray(params.surfaces.gamma_max_deg, dtype=float)
         self.a_columns = params.a_rows().T[1:].copy()   # (n, rows): a_1..a_n by Table-2 row
         self.h_columns = params.h_rows().T[1:].copy()
+        self._committed_cache = None
 
     def polynomials(self, x, derivatives=True):
         """q(x), q'(x), alpha(x), alpha'(x) (the slopes None unless asked)."""
@@ -169,15 +170,27 @@ class NestedSurfaceLaw:
         alpha, dalpha = _power_series(self.alpha_coefficients, x, derivatives)
         return q, dq, alpha, dalpha
 
+    def _at_committed(self, gp0):
+        """q, alpha and sin at the committed plastic angles, remembered between calls: a
+        finite-element solver evaluates many iterates of a load step from one committed state."""
+        cached = self._committed_cache
+        if cached is not None and cached[0].shape == gp0.shape and np.array_equal(cached[0], gp0):
+            return cached[1], cached[2]
+        polynomials, sin_gp0 = self.polynomials(gp0, derivatives=False), np.sin(gp0)
+        self._committed_cache = (gp0.copy(), polynomials, sin_gp0)
+        return polynomials, sin_gp0
+
     def _table(self, gamma_max_deg):
         """a_k and h_k (k = 1..n) of each point's Table-2 row, as lists of arrays."""
         if self.n == 0:
             return [], []
         bounds = self.row_bounds_deg
-        if bounds.size == 1 or np.all(gamma_max_deg < bounds[1]):
-            row = np.zeros(gamma_max_deg.shape, dtype=np.intp)
-        else:
+        if bounds.size > 100:
             row = np.searchsorted(bounds, gamma_max_deg, side="right") - 1
+        else:   # counting the bounds passed is several times faster than a binary search
+            row = np.zeros(gamma_max_deg.shape, dtype=np.int8)
+            for bound in bounds[1:]:
+                row += (gamma_max_deg >= bound).view(np.int8)
         return ([np.take(col, row) for col in self.a_columns],
                 [np.take(col, row) for col in self.h_columns])
 
@@ -197,10 +210,10 @@ class NestedSurfaceLaw:
         gp0 = state.gamma_p
 
         # 1. carry the committed centres at gp0 (the radii may have changed with the row)
-        chain = _Chain(self, self.polynomials(gp0, derivatives=False), a, state.centres, n)
+        polynomials, sin_gp0 = self._at_committed(gp0)
+        chain = _Chain(self, polynomials, a, state.centres, n)
         # 2. elastic trial against the innermost surface, with a round-off allowance so that
         #    re-evaluating a converged state on a surface stays elastic
-        sin_gp0 = np.sin(gp0)
         tau = k2 * (C12 - sin_gp0)
         offset = tau - chain.c[n]
         slack = 8.0 * _EPS * (k2 * (np.abs(C12) + np.abs(sin_gp0)) + np.abs(chain.c[n]) + chain.r[n])
