@@ -198,6 +198,12 @@ class Profile:
                 else:  # on the axis: the mirror image continues smoothly
                     self._end_normal[i, which] = n_own
 
+    def sharp_corners(self) -> np.ndarray:
+        """The (r, z) points where the profile turns sharply (edges of the tool's solid)."""
+        corners = [piece.point(which) for i, piece in enumerate(self.pieces) for which in (0, 1)
+                   if self._end_sharp[i, which] and (which == 1 or i == 0)]
+        return np.unique(np.array(corners).reshape(-1, 2), axis=0)
+
     def closest(self, q: np.ndarray):
         """Closest point (N, 2), distance (N,), sign test normal (N, 2), normal (N, 2), index
         of the piece and curvature of the profile there, for points q (N, 2) with r >= 0."""

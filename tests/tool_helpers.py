@@ -70,9 +70,10 @@ def brute_force(surface: TriangleSurface, points):
 
 def chord_bound(surface: TriangleSurface, curvature_at) -> float:
     """Largest distance between a triangle and the smooth surface through its vertices: per
-    triangle the sagitta R - sqrt(R^2 - rho^2) of its circumcircle (radius rho) on a sphere of
-    radius R = 1/kappa, kappa the largest principal curvature at its vertices (from
-    ``curvature_at(points) -> (N,)``). Exact for a sphere; for other surfaces the osculating
+    triangle the sagitta R - sqrt(R^2 - rho^2) of its smallest enclosing circle (radius rho:
+    the circumradius, or half the longest edge for an obtuse triangle) on a sphere of radius
+    R = 1/kappa, kappa the largest principal curvature where the triangle's centroid projects
+    (``curvature_at(points) -> (N,)``). Exact for a sphere; for other surfaces the osculating
     sphere of the largest curvature bounds the deviation to leading order."""
     tri = surface.triangles
     a, b, c = (surface.nodes[tri[:, k]] for k in range(3))
@@ -80,7 +81,10 @@ def chord_bound(surface: TriangleSurface, curvature_at) -> float:
                   np.linalg.norm(a - b, axis=1))
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     rho = la * lb * lc / (4.0 * np.maximum(area, 1e-300))
-    kappa = np.max([curvature_at(v) for v in (a, b, c)], axis=0)
-    radius = 1.0 / np.maximum(kappa, 1e-300)
+    sides = np.sort(np.stack([la, lb, lc], axis=1), axis=1)
+    obtuse = sides[:, 2] ** 2 > sides[:, 0] ** 2 + sides[:, 1] ** 2
+    rho = np.where(obtuse, 0.5 * sides[:, 2], rho)
+    kappa = curvature_at((a + b + c) / 3.0)
+    radius = 1.0 / np.maximum(kappa, 1e-12)
     sagitta = radius - np.sqrt(np.maximum(radius ** 2 - rho ** 2, 0.0))
     return float(np.max(np.where(rho < radius, sagitta, np.inf)))
