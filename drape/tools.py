@@ -461,12 +461,34 @@ class MeshedSurface:
             self._search(p, np.arange(lo, min(n, lo + chunk)), cutoff, best)
         return best[0], best[1], np.sqrt(best[2])
 
+    def _lower_bound(self, p, tris, dist):
+        """Lower bound of the distance from points p (n, 3) to triangles tris (n, k) whose
+        centroids are dist (n, k) away: max(dist - r, distance to the triangle's plane)."""
+        rel = p[:, None, :] - self._centroids[tris]
+        plane = np.abs(np.einsum("ijk,ijk->ij", rel, self._plane[tris]))
+        return np.maximum(dist - self._radii[tris], plane)
+
     def _search(self, p, rows, cutoff, best):
-        _, idx = self._tree.query(p[rows], k=self.k, workers=self.workers)
-        idx = idx.reshape(rows.size, self.k)
-        self._evaluate(p, np.repeat(rows, self.k), idx.ravel(), best)
+        # 1. the k nearest centroids give d; the next ones are evaluated if they may beat it
+        k0 = min(self.k, self.n_triangles)
+        k1 = min(max(4 * self.k, 8), self.n_triangles)
+        dist, idx = self._tree.query(p[rows], k=k1, workers=self.workers)
+        dist, idx = dist.reshape(rows.size, k1), idx.reshape(rows.size, k1)
+        self._evaluate(p, np.repeat(rows, k0), idx[:, :k0].ravel(), best)
+        if k1 > k0:
+            lower = self._lower_bound(p[rows], idx[:, k0:], dist[:, k0:])
+            i, j = np.nonzero(lower ** 2 < best[2][rows][:, None])
+            self._evaluate(p, rows[i], idx[:, k0:][i, j], best)
+        if k1 == self.n_triangles:
+            return
+        global_kth = dist[:, -1]
+        # 2. per size class, the centroids within d + R_c not among those k1
         for tree, members, r_class in self._classes:
-            pending, k = rows, min(4, members.size)
+            reach = np.sqrt(best[2][rows]) + r_class
+            if cutoff is not None:
+                reach = np.minimum(reach, cutoff + r_class)
+            open_ = global_kth < reach              # else no unseen centroid is within reach
+            pending, k = rows[open_], min(4, members.size)
             while pending.size:
                 reach = np.sqrt(best[2][pending]) + r_class
                 if cutoff is not None:
@@ -476,9 +498,7 @@ class MeshedSurface:
                                          workers=self.workers)
                 dist, local = dist.reshape(pending.size, k), local.reshape(pending.size, k)
                 tris = members[np.minimum(local, members.size - 1)]
-                rel = p[pending][:, None, :] - self._centroids[tris]
-                lower = np.maximum(dist - self._radii[tris],
-                                   np.abs(np.einsum("ijk,ijk->ij", rel, self._plane[tris])))
+                lower = self._lower_bound(p[pending], tris, dist)
                 need = (dist <= reach[:, None]) & (lower ** 2 < best[2][pending][:, None])
                 i, j = np.nonzero(need)
                 self._evaluate(p, pending[i], tris[i, j], best)
