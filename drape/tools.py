@@ -12,6 +12,9 @@ Every tool answers one question, vectorised over points (no Python loop over poi
 * ``normal`` (N, 3): unit normal of the tool surface at the closest point, pointing away from
   the tool's solid (the direction the tool pushes the fabric).
 * ``closest`` (N, 3): the closest point of the tool's surface, in the global frame.
+* ``cutoff`` (mm, optional): exact answers are needed only for points within ``cutoff`` of the
+  tool; farther points may get an upper bound of their distance (still > cutoff, positive
+  outside). It makes queries of points far from a meshed tool cheap.
 
 Two implementations:
 
@@ -19,11 +22,11 @@ Two implementations:
   an (r, z) profile of segments and arcs (hemisphere punch and shank, die with its entry
   fillet, blank-holder ring). The closest point of a surface of revolution lies in the point's
   meridian half-plane, so the 3-D problem is a 2-D closest point on the profile.
-* :class:`MeshedSurface` -- any triangulated surface (gmsh tools, STEP files): a k-d tree on
-  triangle centroids proposes candidates, the exact point-triangle projection is evaluated over
-  them, and a bound certifies the answer (candidates are added until it holds), so the result
-  is the exact closest point of the triangulation. Normals are interpolated from vertex normals
-  with the barycentric coordinates of the closest point: a continuous normal field.
+* :class:`MeshedSurface` -- any triangulated surface (gmsh tools, STEP files): k-d trees on
+  triangle centroids propose candidates, the exact point-triangle projection is evaluated over
+  them, and lower bounds certify the answer (candidates are added until they do), so the
+  result is the exact closest point of the triangulation. Normals are interpolated from vertex
+  normals with the barycentric coordinates of the closest point: a continuous normal field.
 
 The method and its accuracy are described in ``docs/tools.md``.
 """
@@ -49,7 +52,7 @@ class ContactQuery(NamedTuple):
 class RigidSurface(Protocol):
     name: str
 
-    def query(self, points, offset=None) -> ContactQuery: ...
+    def query(self, points, offset=None, cutoff: float | None = None) -> ContactQuery: ...
 
 
 def _tool_frame(points, offset) -> tuple[np.ndarray, np.ndarray]:
@@ -251,7 +254,8 @@ class AxisymmetricSurface:
         e_r[:, 1] = np.where(on_axis, 0.0, p[:, 1] / np.where(on_axis, 1.0, r))
         return np.stack([r, p[:, 2]], axis=1), e_r
 
-    def query(self, points, offset=None) -> ContactQuery:
+    def query(self, points, offset=None, cutoff: float | None = None) -> ContactQuery:
+        """Exact for every point (``cutoff`` is accepted for the common interface and unused)."""
         p, shift = _tool_frame(points, offset)
         q, e_r = self._meridian(p)
         c, gap, n, _, _ = self.profile.closest(q)
@@ -385,6 +389,8 @@ class MeshedSurface:
 
     1. a k-d tree on all triangle centroids gives each point its ``k`` nearest centroids; the
        exact point-triangle distance to those triangles is an upper bound d on the distance;
+       the next 3 k nearest are evaluated where their lower bound (below) is under d, and if
+       the last of them is farther than d + R_c, class c (below) holds no better triangle;
     2. triangles are grouped by their radius r (largest centroid-to-vertex distance) into
        classes spanning a factor 2, one k-d tree each. A triangle of class c whose centroid
        is farther than d + R_c (R_c the class's largest radius) cannot be closer than d, so
