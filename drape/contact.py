@@ -18,11 +18,11 @@ Friction (regularised Coulomb, stick zone of width δ):
 Tangent (g, Δs depending on u through dg/du = n, dΔs/du = I; the tool's curvature term
 dn/du is neglected: exact for flat tools, first order in g/R on curved ones):
     dt/du = -ε_N H(-g) (n - μ φ) ⊗ n  -  μ p Dφ (I - n⊗n)
-with φ = Δs_T/δ (stick) or Δs_T/s (slip), Dφ = (I - n⊗n)/δ (stick) or (I - e⊗e)(I - n⊗n)/s,
-e = Δs_T/s (slip). The friction part is not symmetric (the term μ ε_N φ ⊗ n).
+with φ = Δs_T/δ and Dφ = I/δ (stick), φ = Δs_T/s and Dφ = (I - e⊗e)/s, e = Δs_T/s (slip).
+The friction part is not symmetric (the term μ ε_N φ ⊗ n).
 
-The finite-element layer adds ∫ t·δu dA to the external virtual work and -∫ δu·(dt/du)·du dA to
-the stiffness. Parameters and the penalty rule: ``docs/tools.md``.
+The finite-element layer adds ∫ t·δu dA to the external virtual work and
+-∫ δu·(dt/du)·du dA to the stiffness. Parameters and the penalty rule: ``docs/tools.md``.
 """
 
 from __future__ import annotations

@@ -17,7 +17,6 @@ import numpy as np
 from drape.tools import TriangleSurface
 
 _counter = itertools.count()
-_initialized_here = False
 
 
 def _gmsh():
@@ -26,20 +25,17 @@ def _gmsh():
 
 
 def ensure_initialized():
-    """Initialize gmsh once per process unless someone already did (never finalized here)."""
-    global _initialized_here
+    """Initialize gmsh unless it is running (drape never finalizes it; if someone else did,
+    it is initialized again)."""
     gmsh = _gmsh()
-    if _initialized_here:
-        return
     try:
         # gmsh.initialize() sets General.AbortOnError to 2; before it the option reads 0
         running = gmsh.option.getNumber("General.AbortOnError") != 0
-    except Exception:   # finalized by someone: start again
+    except Exception:   # finalized: start again
         running = False
     if not running:
         gmsh.initialize(readConfigFiles=False)
         gmsh.option.setNumber("General.Terminal", 0)
-    _initialized_here = True
 
 
 @contextlib.contextmanager

@@ -110,10 +110,10 @@ class HemisphereTools:
                              value=self.holder_outer_radius,
                              expected=f"<= die_outer_radius = {self.die_outer_radius:g} mm")
         if self.holder_outer_radius <= self.holder_inner_radius + self.holder_fillet_radius:
+            edge = self.holder_inner_radius + self.holder_fillet_radius
             raise InputError("the holder ring has no flat face", key="holder_outer_radius",
                              value=self.holder_outer_radius,
-                             expected=f"> holder_inner_radius + holder_fillet_radius = "
-                                      f"{self.holder_inner_radius + self.holder_fillet_radius:g} mm")
+                             expected=f"> holder_inner_radius + holder_fillet_radius = {edge:g} mm")
         if self.holder_fillet_radius >= self.holder_thickness:
             raise InputError("the holder's fillet does not fit its thickness",
                              key="holder_fillet_radius", value=self.holder_fillet_radius,
@@ -199,7 +199,8 @@ class DoubleDomeTools:
         rf = 0.5 * self.punch_width + self.clearance
         inner = math.sqrt((self.dome_radius + self.saddle_radius) ** 2 - a ** 2) \
             if self.dome_radius + self.saddle_radius > a else 0.0
-        if self.dome_radius <= math.hypot(a, rf) or inner - self.saddle_radius + self.clearance <= rf:
+        saddle_too_narrow = inner - self.saddle_radius + self.clearance <= rf
+        if self.dome_radius <= math.hypot(a, rf) or saddle_too_narrow:
             raise InputError("the domes do not cover the punch footprint", key="dome_radius",
                              value=self.dome_radius,
                              expected=f"> {math.hypot(a, rf):g} mm (and a saddle wider than the "
@@ -220,7 +221,8 @@ class DoubleDomeTools:
                                       f"{2 * (hole + a) + 2:g} mm")
         if self.die_thickness <= self.depth + 1.0:
             raise InputError("the die block is not deeper than its cavity", key="die_thickness",
-                             value=self.die_thickness, expected=f"> depth + 1 = {self.depth + 1:g} mm")
+                             value=self.die_thickness,
+                             expected=f"> depth + 1 = {self.depth + 1:g} mm")
         if self.punch_height <= self.depth:
             raise InputError("the punch is shorter than the cavity is deep", key="punch_height",
                              value=self.punch_height, expected=f"> depth = {self.depth:g} mm")
@@ -459,7 +461,8 @@ def _double_dome_shape(gmsh, cfg: DoubleDomeTools, which: str) -> int:
     occ = gmsh.model.occ
     a, c = cfg.dome_offset, cfg.clearance
     if which == "punch":
-        R, Rs, rk, rf = cfg.dome_radius, cfg.saddle_radius, cfg.punch_edge_radius, 0.5 * cfg.punch_width
+        R, Rs, rk = cfg.dome_radius, cfg.saddle_radius, cfg.punch_edge_radius
+        rf = 0.5 * cfg.punch_width
         tip = cfg.gap
         z0, height = tip - 1.0, cfg.punch_height + 1.0
     else:
@@ -482,8 +485,8 @@ def _double_dome_shape(gmsh, cfg: DoubleDomeTools, which: str) -> int:
     volume = shape[0][1]
     faces = [t for _, t in gmsh.model.getBoundary([(3, volume)], combined=False, oriented=False)]
     shaped = [abs(t) for t in faces if gmsh.model.getType(2, abs(t)) not in ("Plane", "Cylinder")]
-    walls = [abs(t) for t in faces if abs(t) not in shaped and
-             gmsh.model.getBoundingBox(2, abs(t))[5] - gmsh.model.getBoundingBox(2, abs(t))[2] > 1e-6]
+    height = lambda t: gmsh.model.getBoundingBox(2, t)[5] - gmsh.model.getBoundingBox(2, t)[2]
+    walls = [abs(t) for t in faces if abs(t) not in shaped and height(abs(t)) > 1e-6]
     rim = _edges_of(gmsh, [(2, t) for t in shaped]) & _edges_of(gmsh, [(2, t) for t in walls])
     volume = occ.fillet([volume], sorted(rim), [rk])[0][1]
     occ.synchronize()
@@ -570,7 +573,8 @@ def build_tools(config: ToolsConfig | HemisphereTools | DoubleDomeTools | StepTo
         config = {"hemisphere": config.hemisphere, "double_dome": config.double_dome,
                   "step": config.step}[config.kind]
     mesh = mesh or ToolMeshing()
-    from drape.geometry._gmsh import boundary_surfaces, extract_surface, mesh_surfaces, scratch_model
+    from drape.geometry._gmsh import (boundary_surfaces, extract_surface, mesh_surfaces,
+                                      scratch_model)
     with scratch_model(options=_MESH_OPTIONS) as gmsh:
         sides = {}
         if isinstance(config, HemisphereTools):

@@ -180,7 +180,8 @@ def test_tool_surfaces_are_closed_and_outward(hemisphere, double_dome):
     for tools in (hemisphere[1], double_dome[1]):
         for name, surface in tools.items():
             tri = surface.triangles
-            edges = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+            edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+            edges = np.sort(edges, axis=1)
             _, counts = np.unique(edges, axis=0, return_counts=True)
             assert np.all(counts == 2), name                # watertight
             a, b, c = (surface.nodes[tri[:, k]] for k in range(3))
@@ -221,7 +222,7 @@ def test_step_tools(step_files):
     q = MeshedSurface(punch).query(np.array([[11.0, 22.0, 20.0], [11.0, 22.0, 8.0]]))
     np.testing.assert_allclose(q.gap, [7.0, -5.0], atol=1e-9)      # outside above, inside
     np.testing.assert_allclose(q.normal[0], [0.0, 0.0, 1.0], atol=1e-9)
-    np.testing.assert_allclose(tools["die"].normals, np.tile([0.0, 0.0, 1.0], (len(tools["die"].normals), 1)))
+    np.testing.assert_allclose(tools["die"].normals[:, 2], 1.0)
     np.testing.assert_allclose(tools["holder"].normals[:, 2], -1.0)
 
 
@@ -296,7 +297,8 @@ def test_tool_files(hemisphere, tmp_path):
     np.testing.assert_allclose(points[:len(tools["punch"].nodes)],
                                tools["punch"].nodes - [0.0, 0.0, 20.0], rtol=1e-8, atol=1e-8)
     tool_ids = np.array(piece.find("CellData/DataArray").text.split(), dtype=int)
-    assert np.bincount(tool_ids).tolist() == [len(tools[n].triangles) for n in ("punch", "die", "holder")]
+    per_tool = [len(tools[n].triangles) for n in ("punch", "die", "holder")]
+    assert np.bincount(tool_ids).tolist() == per_tool
 
     from drape.geometry._gmsh import scratch_model
     msh = write_tool_surfaces(tmp_path / "tools.msh", tools)
@@ -319,3 +321,27 @@ def test_tools_are_the_same_on_every_rank():
                  for s in tools.values())
     assert len(set(comm.allgather(digest))) == 1
     assert comm_size() == comm.size
+
+
+@pytest.mark.serial
+def test_builders_leave_other_gmsh_models_alone():
+    """A model another part of drape has open (the blank) stays current, with its options, and
+    gmsh finalized by someone else is started again."""
+    import gmsh
+    from drape.geometry._gmsh import ensure_initialized
+    ensure_initialized()
+    gmsh.model.add("someone-elses-blank")
+    gmsh.model.occ.addRectangle(0, 0, 0, 10, 10)
+    gmsh.model.occ.synchronize()
+    gmsh.option.setNumber("Mesh.MeshSizeMax", 3.5)
+    tools = build_tools(HemisphereTools(), ToolMeshing(chord_tolerance=1.0, max_size=40.0,
+                                                       elements_per_radius=1.0))
+    assert set(tools) == {"punch", "die", "holder"}
+    assert gmsh.model.getCurrent() == "someone-elses-blank"
+    assert gmsh.model.getEntities(2) == [(2, 1)]
+    assert gmsh.option.getNumber("Mesh.MeshSizeMax") == 3.5
+    gmsh.model.remove()
+    gmsh.finalize()
+    again = build_tools(HemisphereTools(), ToolMeshing(chord_tolerance=1.0, max_size=40.0,
+                                                       elements_per_radius=1.0))
+    np.testing.assert_array_equal(again["punch"].triangles, tools["punch"].triangles)

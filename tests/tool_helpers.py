@@ -50,7 +50,8 @@ def wavy_sheet(n=24, size=40.0, amplitude=3.0, seed=0) -> TriangleSurface:
     normals = np.stack([-zx.ravel(), -zy.ravel(), np.ones(zx.size)], axis=1)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
     tri = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
     return TriangleSurface("sheet", nodes, tri, normals)
 
