@@ -566,8 +566,22 @@ def build_tools(config: ToolsConfig | HemisphereTools | DoubleDomeTools | StepTo
     With an MPI communicator of more than one rank, rank 0 builds and the others receive the
     arrays (the tools are identical on every rank)."""
     if comm is not None and comm.size > 1:
-        result = build_tools(config, mesh) if comm.rank == 0 else None
-        return comm.bcast(result, root=0)
+        result = None
+        if comm.rank == 0:
+            try:
+                result = build_tools(config, mesh)
+            except InputError as error:     # every rank raises it, none waits for rank 0
+                result = ("InputError", error.problem, error.source, error.key,
+                          error.value, error.expected)
+            except Exception as error:
+                result = ("Exception", f"{type(error).__name__}: {error}")
+        result = comm.bcast(result, root=0)
+        if isinstance(result, tuple) and result[0] == "InputError":
+            problem, source, key, value, expected = result[1:]
+            raise InputError(problem, source=source, key=key, value=value, expected=expected)
+        if isinstance(result, tuple):
+            raise RuntimeError(f"building the tools failed on rank 0: {result[1]}")
+        return result
     if isinstance(config, ToolsConfig):
         mesh = mesh or config.mesh
         config = {"hemisphere": config.hemisphere, "double_dome": config.double_dome,
@@ -577,10 +591,15 @@ def build_tools(config: ToolsConfig | HemisphereTools | DoubleDomeTools | StepTo
                                       scratch_model)
     with scratch_model(options=_MESH_OPTIONS) as gmsh:
         sides = {}
-        if isinstance(config, HemisphereTools):
-            volumes = {name: [tag] for name, tag in _build_hemisphere(gmsh, config).items()}
-        elif isinstance(config, DoubleDomeTools):
-            volumes = {name: [tag] for name, tag in _build_double_dome(gmsh, config).items()}
+        if isinstance(config, (HemisphereTools, DoubleDomeTools)):
+            builder = _build_hemisphere if isinstance(config, HemisphereTools) else \
+                _build_double_dome
+            try:
+                volumes = {name: [tag] for name, tag in builder(gmsh, config).items()}
+            except Exception as error:   # OpenCASCADE refused a boolean or a fillet
+                raise InputError(f"gmsh/OpenCASCADE could not build the tools ({error})",
+                                 expected="dimensions that give valid solids (docs/tools.md)"
+                                 ) from None
         elif isinstance(config, StepTools):
             volumes = {}
             for name in TOOL_NAMES:
@@ -599,7 +618,12 @@ def build_tools(config: ToolsConfig | HemisphereTools | DoubleDomeTools | StepTo
                 faces[name] = boundary_surfaces(tags)
             else:
                 faces[name] = tags
-        mesh_surfaces(mesh, sorted({f for fs in faces.values() for f in fs}))
+        try:
+            mesh_surfaces(mesh, sorted({f for fs in faces.values() for f in fs}))
+        except Exception as error:
+            raise InputError(f"gmsh could not mesh the tool surfaces ({error})",
+                             expected="tools gmsh can mesh; try other [tools.mesh] sizes"
+                             ) from None
         return {name: extract_surface(name, faces[name], sides.get(name, "solid"))
                 for name in faces}
 

@@ -321,6 +321,9 @@ def test_tools_are_the_same_on_every_rank():
                  for s in tools.values())
     assert len(set(comm.allgather(digest))) == 1
     assert comm_size() == comm.size
+    # a tool OpenCASCADE cannot build (dimensions not validated): an InputError on every rank
+    with pytest.raises(InputError, match="could not build"):
+        build_tools(HemisphereTools(die_fillet_radius=60.0), ToolMeshing(size=40.0), comm=comm)
 
 
 @pytest.mark.serial
