@@ -95,6 +95,21 @@ def test_hemisphere_meshed_gaps_within_chord_error(hemisphere):
 
 
 @pytest.mark.serial
+def test_meshed_search_on_a_graded_gmsh_mesh_equals_brute_force(hemisphere):
+    """The die's mesh mixes 1 mm triangles (fillet) and 20 mm ones (flat faces): the indexed
+    search finds what a loop over all its triangles finds, near and far."""
+    from tool_helpers import brute_force
+    _, meshed, _ = hemisphere
+    die = meshed["die"]
+    seeds = die.nodes[RNG.integers(0, len(die.nodes), 150)]
+    points = np.concatenate([seeds + RNG.normal(size=seeds.shape) * 2.0,
+                             seeds + RNG.normal(size=seeds.shape) * 60.0])
+    gap = MeshedSurface(die).query(points).gap
+    dist, _ = brute_force(die, points)
+    np.testing.assert_allclose(np.abs(gap), dist, atol=1e-9)
+
+
+@pytest.mark.serial
 def test_hemisphere_tools_positions(hemisphere):
     """Blank plane z = 0: die top at -gap, holder bottom and punch tip at +gap; down to full
     stroke the punch keeps the radial clearance from the die, reached when the shank passes

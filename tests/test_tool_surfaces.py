@@ -196,6 +196,27 @@ def test_meshed_search_equals_brute_force(scale):
     np.testing.assert_allclose(closest[unique], ref_closest[unique], atol=1e-7 * max(1, scale))
 
 
+def test_a_large_triangle_behind_many_small_ones_is_found():
+    """The k nearest centroids all belong to a fine patch 1.4 mm away, while the closest point
+    is 0.6 mm away inside one large triangle whose centroid is 40 mm off: the size classes'
+    bound must bring it in."""
+    patch = wavy_sheet(n=10, size=6.0, amplitude=0.0)
+    nodes = np.concatenate([[[-20.0, -20.0, 0.0], [100.0, -20.0, 0.0], [-20.0, 100.0, 0.0]],
+                            patch.nodes + [5.0, 5.0, 2.0]])
+    tri = np.concatenate([[[0, 1, 2]], patch.triangles + 3])
+    normals = np.tile([0.0, 0.0, 1.0], (len(nodes), 1))
+    surface = TriangleSurface("mixed", nodes, tri, normals)
+    points = np.array([[5.0, 5.0, 0.6], [6.0, 4.0, 0.9], [3.0, 7.0, -0.5]])
+    tool = MeshedSurface(surface)
+    _, idx = tool._tree.query(points, k=tool.k)
+    assert np.all(idx != 0)                        # the big triangle is not among the first
+    gap, normal, closest = tool.query(points)
+    np.testing.assert_allclose(gap, [0.6, 0.9, -0.5], atol=1e-12)
+    np.testing.assert_allclose(closest, points * [1, 1, 0], atol=1e-12)
+    dist, _ = brute_force(surface, points)
+    np.testing.assert_allclose(np.abs(gap), dist, atol=1e-12)
+
+
 def test_meshed_sphere_within_chord_error():
     """An icosphere (nodes on the sphere) against the exact sphere: gaps agree within the
     sagitta bound of its triangles, normals within the normal's turn over a triangle, and the
