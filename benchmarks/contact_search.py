@@ -1,0 +1,125 @@
+"""Throughput of the contact kernels: closest-point queries against the tools, and the law.
+
+    .venv/bin/python benchmarks/contact_search.py [--points 4e5] [--far-points 2e4] [--repeats 2]
+                                                  [--workers 1]
+
+Builds the tools with their default meshes (docs/tools.md), then times, on N points each:
+
+* double dome, meshed (drape.tools.MeshedSurface) -- the punch and the die:
+  - ``contact``: points within +-0.3 mm of the tool's surface (a draped ply in contact);
+  - ``near``: points within about +-3 mm (the ply around the contact zone);
+  - ``blank``: a flat blank (1 mm under z = 0, over the die's footprint) against the punch in
+    its working position: most points are 10-250 mm away (the first load step), with a 5 mm
+    cutoff on N points and exact on --far-points points (exact far queries cost about d / h
+    candidates per point: d the distance, h the element size);
+* hemisphere: the punch and the die, analytic (drape.tools.AxisymmetricSurface) and meshed,
+  on points within +-3 mm of their surfaces;
+* the contact law (drape.contact.traction) on N points in contact, half of them slipping.
+
+Times are the best of --repeats (wall clock, after one warm-up on 1000 points); "pairs/pt" is
+the number of exact point-triangle projections per point. The machine's load matters: the
+figures in docs/tools.md say on what they were taken.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+import numpy as np
+
+from drape.contact import traction
+from drape.geometry.tools import (DoubleDomeTools, HemisphereTools, analytic_tools,
+                                  build_tools)
+from drape.tools import MeshedSurface
+
+
+def near_points(surface, n, spread, rng):
+    """Points spread along the normal (uniform in +-spread) of random points of the surface."""
+    tri = surface.triangles[rng.integers(0, len(surface.triangles), n)]
+    w = rng.dirichlet([1.0, 1.0, 1.0], n)
+    base = np.einsum("ij,ijk->ik", w, surface.nodes[tri])
+    normal = np.einsum("ij,ijk->ik", w, surface.normals[tri])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    return base + normal * rng.uniform(-spread, spread, (n, 1))
+
+
+def timed(label, call, n, repeats, pairs=None):
+    best = np.inf
+    for _ in range(repeats):
+        if pairs is not None:
+            pairs.pairs_evaluated = 0
+        start = time.perf_counter()
+        call()
+        best = min(best, time.perf_counter() - start)
+    extra = f"  {pairs.pairs_evaluated / n:5.1f} pairs/pt" if pairs is not None else ""
+    print(f"  {label:<44s} {best:7.2f} s  {n / best / 1e3:8.1f} k points/s{extra}", flush=True)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--points", type=float, default=4e5)
+    parser.add_argument("--far-points", type=float, default=2e4)
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--workers", type=int, default=1, help="k-d tree threads (-1: all)")
+    args = parser.parse_args(argv)
+    n = int(args.points)
+    rng = np.random.default_rng(1)
+    print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+          f"load average {os.getloadavg()[0]:.1f}; N = {n}")
+
+    start = time.perf_counter()
+    dd_cfg = DoubleDomeTools()
+    dd = build_tools(dd_cfg)
+    print(f"double dome built and meshed in {time.perf_counter() - start:.1f} s: " +
+          ", ".join(f"{k} {len(v.triangles)} triangles" for k, v in dd.items()))
+    start = time.perf_counter()
+    hemi_cfg = HemisphereTools()
+    hemi = build_tools(hemi_cfg)
+    print(f"hemisphere built and meshed in {time.perf_counter() - start:.1f} s: " +
+          ", ".join(f"{k} {len(v.triangles)} triangles" for k, v in hemi.items()))
+
+    print("double dome, meshed:")
+    for name in ("punch", "die"):
+        tool = MeshedSurface(dd[name], workers=args.workers)
+        tool.query(near_points(dd[name], 1000, 1.0, rng))
+        for label, spread in (("contact", 0.3), ("near", 3.0)):
+            pts = near_points(dd[name], n, spread, rng)
+            timed(f"{name}, {label} (+-{spread} mm)", lambda: tool.query(pts), n, args.repeats,
+                  tool)
+    def flat_blank(count):
+        side = int(np.sqrt(count * dd_cfg.die_width / dd_cfg.die_length))
+        xs = np.linspace(-dd_cfg.die_length / 2, dd_cfg.die_length / 2, max(2, count // side))
+        ys = np.linspace(-dd_cfg.die_width / 2, dd_cfg.die_width / 2, side)
+        grid = np.stack(np.meshgrid(xs, ys, [-1.0], indexing="ij"), axis=-1).reshape(-1, 3)
+        return grid       # 1 mm under the plane z = 0: the punch's tips are 1 mm away
+
+    punch = MeshedSurface(dd["punch"], workers=args.workers)
+    blank = flat_blank(n)
+    timed(f"punch, flat blank ({len(blank)} pts), cutoff 5 mm",
+          lambda: punch.query(blank, cutoff=5.0), len(blank), args.repeats, punch)
+    few = flat_blank(int(args.far_points))
+    timed(f"punch, flat blank ({len(few)} pts), exact", lambda: punch.query(few), len(few),
+          args.repeats, punch)
+
+    print("hemisphere (+-3 mm of the surface):")
+    exact = analytic_tools(hemi_cfg)
+    for name in ("punch", "die"):
+        pts = near_points(hemi[name], n, 3.0, rng)
+        timed(f"{name}, analytic", lambda: exact[name].query(pts), n, args.repeats)
+        meshed = MeshedSurface(hemi[name], workers=args.workers)
+        timed(f"{name}, meshed", lambda: meshed.query(pts), n, args.repeats, meshed)
+
+    print("contact law:")
+    normal = rng.normal(size=(n, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    gap = -rng.uniform(0.0, 1e-3, n)
+    slip = rng.normal(size=(n, 3)) * 0.05
+    timed("traction and tangent", lambda: traction(gap, normal, slip, 2500.0, 0.2, 0.05), n,
+          args.repeats)
+
+
+if __name__ == "__main__":
+    main()

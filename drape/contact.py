@@ -1,0 +1,142 @@
+"""Contact of the membrane with rigid tools: penalty normal law and regularised Coulomb friction,
+pointwise and vectorised (numpy only), with their consistent tangents.
+
+At each quadrature point the finite-element layer supplies, from the current position, the
+tool's gap g and unit normal n (pointing away from the tool, see :mod:`drape.tools`) and the
+slip increment Δs of the fabric relative to the tool over the current load step (a 3-vector:
+the displacement increment minus the tool's rigid motion). :func:`traction` returns the
+traction t the tool exerts on the fabric (N/mm², per unit reference area), its derivative
+dt/du with respect to the fabric displacement (3×3 per point) and the contact pressure.
+
+Normal law (penalty):   p = ε_N ⟨-g⟩,  t_N = p n        (⟨x⟩ = max(x, 0))
+Friction (regularised Coulomb, stick zone of width δ):
+    Δs_T = (I - n⊗n) Δs,   s = |Δs_T|
+    t_T = -μ p Δs_T / δ      if s <= δ   (stick: an elastic tangential spring μ p / δ)
+    t_T = -μ p Δs_T / s      if s >  δ   (slip: |t_T| = μ p, opposite to the slip)
+    t = t_N + t_T
+
+Tangent (g, Δs depending on u through dg/du = n, dΔs/du = I; the tool's curvature term
+dn/du is neglected: exact for flat tools, first order in g/R on curved ones):
+    dt/du = -ε_N H(-g) (n - μ φ) ⊗ n  -  μ p Dφ (I - n⊗n)
+with φ = Δs_T/δ and Dφ = I/δ (stick), φ = Δs_T/s and Dφ = (I - e⊗e)/s, e = Δs_T/s (slip).
+The friction part is not symmetric (the term μ ε_N φ ⊗ n).
+
+The finite-element layer adds ∫ t·δu dA to the external virtual work and
+-∫ δu·(dt/du)·du dA to the stiffness. Parameters and the penalty rule: ``docs/tools.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import numpy as np
+
+from drape.config import non_negative, positive, setting
+from drape.errors import InputError
+
+#: Default tool-fabric friction coefficient: dry glass or carbon fabric on steel at room
+#: temperature, at the low end of the measured 0.2-0.3 (docs/tools.md, "Friction").
+DEFAULT_FRICTION = 0.2
+#: Slip (mm) over which friction builds up to μ p.
+DEFAULT_SLIP_REGULARISATION = 0.05
+#: c in ε_N = c K / h² (docs/tools.md, "Penalty").
+DEFAULT_PENALTY_FACTOR = 1.0
+
+SEPARATED, STICK, SLIP = 0, 1, 2
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactParameters:
+    """The ``[contact]`` table."""
+
+    penalty: float | None = setting(None, "normal penalty ε_N, contact pressure per unit "
+                                    "penetration; unset: propose_penalty(K, h, penalty_factor)",
+                                    positive, "N/mm^3")
+    penalty_factor: float = setting(DEFAULT_PENALTY_FACTOR, "c in ε_N = c K / h² (K the larger "
+                                    "yarn stiffness, h the blank's element size)", positive)
+    friction: float = setting(DEFAULT_FRICTION, "Coulomb friction coefficient μ between fabric "
+                              "and tools", non_negative)
+    slip_regularisation: float = setting(DEFAULT_SLIP_REGULARISATION, "slip δ over which "
+                                         "friction builds up to μ p (the stick zone)", positive,
+                                         "mm")
+
+    def penalty_for(self, yarn_stiffness: float, element_size: float) -> float:
+        """ε_N: the configured penalty, or the proposed one for this fabric and mesh."""
+        if self.penalty is not None:
+            return self.penalty
+        return propose_penalty(yarn_stiffness, element_size, self.penalty_factor)
+
+
+def propose_penalty(yarn_stiffness: float, element_size: float,
+                    factor: float = DEFAULT_PENALTY_FACTOR) -> float:
+    """ε_N = c K / h² (N/mm³) for the larger yarn tension stiffness K (N/mm, e.g. the law's
+    max(K1, K2)) and the blank's element size h (mm).
+
+    The contact spring of one element, ε_N h², is then c K: as stiff as the element's own
+    tension stiffness (K h / h), so contact adds no stiffer mode than the fabric already has,
+    and the penetration under a pressure p is p h² / (c K), i.e. a fraction p h / (c K) of h
+    (p h / K ~ 1e-4 for 10 kN/mm yarns, 1 mm elements and 1 MPa)."""
+    if yarn_stiffness <= 0 or element_size <= 0 or factor <= 0:
+        raise InputError("the penalty needs positive stiffness, element size and factor",
+                         value=(yarn_stiffness, element_size, factor),
+                         expected="K > 0 (N/mm), h > 0 (mm), c > 0")
+    return factor * yarn_stiffness / element_size ** 2
+
+
+class ContactResponse(NamedTuple):
+    """Per point: traction (N, 3) on the fabric [N/mm²], dt/du (N, 3, 3) [N/mm³], contact
+    pressure p (N,) [N/mm²], and state (N,): 0 separated, 1 stick, 2 slip."""
+
+    traction: np.ndarray
+    tangent: np.ndarray
+    pressure: np.ndarray
+    state: np.ndarray
+
+
+def traction(gap, normal, slip_increment, penalty, friction=DEFAULT_FRICTION,
+             regularisation=DEFAULT_SLIP_REGULARISATION) -> ContactResponse:
+    """The penalty normal law with regularised Coulomb friction at N points (module docstring).
+
+    gap (N,) mm; normal (N, 3) unit; slip_increment (N, 3) mm; penalty ε_N (N/mm³), friction μ
+    and regularisation δ (mm): scalars or arrays of N."""
+    g = np.asarray(gap, dtype=float)
+    n = np.asarray(normal, dtype=float)
+    ds = np.asarray(slip_increment, dtype=float)
+    eps = np.broadcast_to(np.asarray(penalty, dtype=float), g.shape)
+    mu = np.broadcast_to(np.asarray(friction, dtype=float), g.shape)
+    delta = np.broadcast_to(np.asarray(regularisation, dtype=float), g.shape)
+    if n.shape != g.shape + (3,) or ds.shape != n.shape:
+        raise ValueError(f"expected gap (N,), normal and slip (N, 3); got {g.shape}, {n.shape}, "
+                         f"{ds.shape}")
+    contact = g < 0.0
+    p = np.where(contact, -eps * g, 0.0)
+    eye = np.eye(3)
+    proj = eye - n[:, :, None] * n[:, None, :]                       # I - n⊗n
+    ds_t = np.einsum("nij,nj->ni", proj, ds)
+    s = np.linalg.norm(ds_t, axis=1)
+    slip = contact & (s > delta)
+    scale = np.where(slip, s, delta)                                 # φ = Δs_T / scale
+    phi = ds_t / scale[:, None]
+    t = p[:, None] * (n - mu[:, None] * phi)
+    # tangent
+    active = np.where(contact, eps, 0.0)
+    tangent = -active[:, None, None] * (n - mu[:, None] * phi)[:, :, None] * n[:, None, :]
+    e = phi  # in slip, |φ| = 1: e = φ
+    dphi = np.where(slip[:, None, None], eye - e[:, :, None] * e[:, None, :], eye)
+    dphi = np.einsum("nij,njk->nik", dphi, proj) / scale[:, None, None]
+    tangent -= (mu * p)[:, None, None] * dphi
+    state = np.where(~contact, SEPARATED, np.where(slip, SLIP, STICK))
+    return ContactResponse(t, tangent, p, state)
+
+
+def penetration_report(gap, weights=None) -> dict:
+    """Largest penetration (mm, >= 0), the number of points in contact and, with quadrature
+    weights (reference area per point, mm²), the area in contact: to report at convergence."""
+    g = np.asarray(gap, dtype=float)
+    contact = g < 0.0
+    report = {"max_penetration": float(max(0.0, -g.min())) if g.size else 0.0,
+              "points_in_contact": int(np.count_nonzero(contact))}
+    if weights is not None:
+        report["contact_area"] = float(np.sum(np.asarray(weights, dtype=float)[contact]))
+    return report
