@@ -417,10 +417,10 @@ def fit_inner(curve: Curve, outer: MaterialParameters, n: int, bounds_deg, fit_r
         # and the same with h scaled by 0.1, 0.3, 3 and 10
         base_u = fit.u[row - 1] if row > 0 else fit.u[row]
         base_eta = fit.eta[row - 1] if row > 0 else fit.eta[row]
-        candidates = [base_eta + math.log(s) for s in (1.0, 0.1, 0.3, 3.0, 10.0)]
+        candidates = [np.r_[fit.f if first else [], base_u, base_eta + math.log(scale)]
+                      for scale in (1.0, 0.1, 0.3, 3.0, 10.0)]
         best = None
-        for eta0 in candidates:
-            x0 = np.r_[fit.f if first else [], base_u, np.clip(eta0, lower[-n:], upper[-n:])]
+        for x0 in candidates:
             x0 = np.clip(x0, lower, upper)
             cost = float(np.sum(residual(x0) ** 2))
             if best is None or cost < best[0]:

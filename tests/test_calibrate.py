@@ -18,7 +18,6 @@ import dataclasses
 import math
 
 import numpy as np
-import pytest
 
 from drape import calibrate as cal
 from drape.cli import main
@@ -183,6 +182,12 @@ def test_three_surface_truth_is_matched_by_both_stages(tmp_path, capsys):
     # against the noisy data the fit can do no better than the noise, and not much worse
     fitted_tau = drive(fitted, history)["tau"]
     assert 0.8 * noise < cal.rms(fitted_tau, noisy) < 1.3 * noise
+    # stage 2 starts from stage 1's outer surface and must not end worse than it on the data
+    with (out / "calibration.csv").open() as stream:
+        rows = list(csv.DictReader(stream))
+    one, nested = ([float(r[k]) for r in rows] for k in ("tau_one_surface", "tau_nested"))
+    assert np.allclose(nested, fitted_tau, rtol=0, atol=1e-12)
+    assert cal.rms(nested, noisy) <= 1.02 * cal.rms(one, noisy)
 
 
 # --- bad input --------------------------------------------------------------------------------
