@@ -485,7 +485,7 @@ def plot_fit(path: Path, curve: Curve, result: Calibration) -> None:
     fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
     ax.plot(curve.gamma_deg, curve.tau, ".", color="0.55", ms=2.5, label=f"data ({len(curve)} rows)")
     ax.plot(curve.gamma_deg, result.tau_one_surface, color="tab:orange", lw=1.1, ls="--",
-            label=f"stage 1, one surface (RMS {result.rms_one_surface:.3g} N/mm)")
+            label=f"stage 1, one surface (RMS {result.rms_one_surface:.3g} N/mm)", zorder=3)
     if result.nested.n:
         ax.plot(curve.gamma_deg, result.tau_nested, color="tab:blue", lw=1.5,
                 label=f"stage 2, {result.nested.n + 1} nested surfaces "
