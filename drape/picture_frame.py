@@ -81,6 +81,28 @@ def read_history(path: str | Path) -> np.ndarray:
     return np.asarray(angles)
 
 
+# --- frame force and shear stress ----------------------------------------------------------------
+
+def frame_force(tau, gamma_deg, side):
+    """Force (N) pulling a picture frame of side ``side`` (mm) along its diagonal, from the
+    projected shear stress ``tau`` (N/mm) at the shear angle ``gamma_deg``.
+
+    The fabric fills the frame: a square of side L in the reference configuration, sheared
+    uniformly (C11 = C22 = 1, C12 = sin gamma). Its internal power is L^2 tau cos(gamma) dgamma/2
+    (tau = S:(G1G2 + G2G1), dC12 = cos(gamma) dgamma). The diagonal along which the frame is
+    pulled is d = 2 L cos(pi/4 - gamma/2), so dd = L sin(pi/4 - gamma/2) dgamma and
+    F dd = power gives F = L tau cos(gamma) / (2 sin(pi/4 - gamma/2)). Arrays broadcast.
+    """
+    gamma = np.radians(np.asarray(gamma_deg, dtype=float))
+    return side * np.asarray(tau, dtype=float) * np.cos(gamma) / (2.0 * np.sin(0.25 * np.pi - 0.5 * gamma))
+
+
+def frame_tau(force, gamma_deg, side):
+    """The inverse of :func:`frame_force`: tau (N/mm) from the frame force (N), |gamma| < 90."""
+    gamma = np.radians(np.asarray(gamma_deg, dtype=float))
+    return 2.0 * np.asarray(force, dtype=float) * np.sin(0.25 * np.pi - 0.5 * gamma) / (side * np.cos(gamma))
+
+
 # --- the driver --------------------------------------------------------------------------------
 
 def drive(params: MaterialParameters, history_deg) -> dict[str, np.ndarray]:

@@ -1,0 +1,31 @@
+# drape on Debian bookworm: Debian's FEniCSx stack (python3-dolfinx 0.5.2, PETSc, Open MPI, gmsh)
+# and drape, installed by the same scripts/install.sh as on a machine (README, "Docker").
+#
+#   docker build -t drape .
+#   docker run --rm -v "$PWD/results:/results" drape picture-frame --output /results/pf
+#
+# No Docker engine runs on the project's machines: tests/test_container.py proves this recipe by
+# running these very instructions in a debootstrap'ed minimal bookworm root (chroot), then a
+# drape job and an mpirun job in it. It understands FROM, ENV, COPY, RUN, VOLUME, WORKDIR,
+# ENTRYPOINT and CMD; teach it any other instruction before using one here.
+FROM debian:bookworm
+
+# Open MPI refuses to run as root unless told; containers are small, so allow more ranks than
+# cores; Docker's default seccomp/ptrace rules break Open MPI's shared-memory single copy.
+ENV LANG=C.UTF-8 \
+    OMPI_ALLOW_RUN_AS_ROOT=1 \
+    OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 \
+    OMPI_MCA_rmaps_base_oversubscribe=1 \
+    OMPI_MCA_btl_vader_single_copy_mechanism=none \
+    PATH=/opt/drape/venv/bin:/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
+
+# The source stays in the image (configs/, docs/); drape is installed into its own venv, not
+# editable, so that the image does not depend on the source tree's state.
+COPY . /opt/drape/src
+RUN DRAPE_VENV=/opt/drape/venv DRAPE_EDITABLE=0 /opt/drape/src/scripts/install.sh \
+    && rm -rf /var/lib/apt/lists/* /root/.cache/pip
+
+VOLUME /results
+WORKDIR /results
+ENTRYPOINT ["/opt/drape/venv/bin/drape"]
+CMD ["--help"]
