@@ -19,6 +19,7 @@ from drape.errors import EXIT_BAD_INPUT, EXIT_RUN_FAILED, InputError, RunFailed
 #: Modules are imported only for the subcommand that runs (dolfinx takes seconds to import).
 SUBCOMMANDS = {
     "picture-frame": "drape.picture_frame",
+    "run": "drape.run",
 }
 
 DESCRIPTION = """\
