@@ -32,7 +32,10 @@ class PrescribedMotion:
         self.values = []          # per component: Function on the collapsed subspace
         self._assignments = []    # per component: [(formula, dofs in V, dofs in the subspace)]
         self.bcs = []
-        facets = {name: blank_mesh.facets(name) for name in {p.boundary for p in loading.prescribed}}
+        # in the order of the config (a set would differ between ranks: the reactions are
+        # summed over ranks name by name)
+        names = list(dict.fromkeys(p.boundary for p in loading.prescribed))
+        facets = {name: blank_mesh.facets(name) for name in names}
         for i, component in enumerate(COMPONENTS):
             Vi, _ = V.sub(i).collapse()
             g = fem.Function(Vi, name=f"prescribed_{component}")
