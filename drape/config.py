@@ -95,7 +95,10 @@ def _type_name(tp) -> str:
     if origin is tuple:
         return "an array of " + _type_name(typing.get_args(tp)[0]).removeprefix("a ").removeprefix("an ") + "s"
     if origin is dict:
-        return "a table of " + _type_name(typing.get_args(tp)[1]).removeprefix("a ").removeprefix("an ") + "s"
+        item = _type_name(typing.get_args(tp)[1])
+        if " or " in item:
+            return f"a table of values ({item})"
+        return "a table of " + item.removeprefix("a ").removeprefix("an ") + "s"
     if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
         return " or ".join(_type_name(a) for a in typing.get_args(tp) if a is not type(None))
     if dataclasses.is_dataclass(tp):

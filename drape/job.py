@@ -70,8 +70,8 @@ class SolverConfig:
     """Newton's method (PETSc SNES, options prefix ``drape_``) and its linear solver."""
 
     linear: Literal["direct", "iterative"] = setting(
-        "direct", "'direct': LU with MUMPS; 'iterative': GMRES with GAMG and the rigid-body "
-        "near-nullspace (large meshes)")
+        "direct", "'direct': LU with MUMPS; 'iterative' (large meshes): GMRES with a field "
+        "split, GAMG with the rigid-body near-nullspace in the plane, GAMG out of it")
     max_iterations: int = setting(20, "Newton iterations per step before a cutback", positive)
     rtol: float = setting(1e-10, "convergence: residual norm relative to the step's first", positive)
     atol: float = setting(1e-12, "convergence: absolute residual norm as a fraction of the force "

@@ -210,3 +210,8 @@ def test_steps_below_the_minimum_raise_run_failed_naming_step_load_and_residual(
     assert "step 2" in message and "from t = 0.25" in message and "1.230e-01" in message
     assert "DIVERGED_LINE_SEARCH" in message
     assert [s.t for s in accepted] == [0.25]
+
+
+def test_the_docs_list_every_key():
+    from conftest import REPO
+    assert key_table() in (REPO / "docs" / "fe-solver.md").read_text()
