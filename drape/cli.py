@@ -19,6 +19,7 @@ from drape.errors import EXIT_BAD_INPUT, EXIT_RUN_FAILED, InputError, RunFailed
 #: Modules are imported only for the subcommand that runs (dolfinx takes seconds to import).
 SUBCOMMANDS = {
     "picture-frame": "drape.picture_frame",
+    "run": "drape.run",
     "calibrate": "drape.calibrate",
 }
 
@@ -53,13 +54,21 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as error:
         if os.environ.get("DRAPE_DEBUG"):
             raise
-        print(f"drape {args.command}: error: {error.message}", file=sys.stderr)
+        _report(f"drape {args.command}: error: {error.message}")
         return EXIT_BAD_INPUT
     except RunFailed as error:
         if os.environ.get("DRAPE_DEBUG"):
             raise
-        print(f"drape {args.command}: run failed: {error}", file=sys.stderr)
+        _report(f"drape {args.command}: run failed: {error}")
         return EXIT_RUN_FAILED
+
+
+def _report(message: str) -> None:
+    """One line on stderr; under MPI (every rank raises the same error) from rank 0 only."""
+    mpi = sys.modules.get("mpi4py.MPI")
+    if mpi is not None and mpi.COMM_WORLD.rank != 0:
+        return
+    print(message, file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -1,8 +1,8 @@
 """Configurations are data: TOML files read into frozen dataclasses, validated on load.
 
 A dataclass is its own schema. Each field's type says what TOML value it takes (``float``
-accepts integers, ``tuple[float, ...]`` an array, a nested dataclass a table, ``Literal`` one of
-a few strings); ``field(metadata={"check": ..., "doc": ...})`` adds a range check and the text
+accepts integers, ``tuple[float, ...]`` an array, a nested dataclass a table, ``dict[str, X]`` a
+table of named X (user-chosen keys), ``Literal`` one of a few strings); ``field(metadata={"check": ..., "doc": ...})`` adds a range check and the text
 used in error messages. Unknown keys are refused with the closest known names. Cross-field rules
 live in the dataclass's ``validate()`` method, which raises :class:`~drape.errors.InputError`.
 """
@@ -94,6 +94,11 @@ def _type_name(tp) -> str:
         return "one of " + ", ".join(repr(v) for v in typing.get_args(tp))
     if origin is tuple:
         return "an array of " + _type_name(typing.get_args(tp)[0]).removeprefix("a ").removeprefix("an ") + "s"
+    if origin is dict:
+        item = _type_name(typing.get_args(tp)[1])
+        if " or " in item:
+            return f"a table of values ({item})"
+        return "a table of " + item.removeprefix("a ").removeprefix("an ") + "s"
     if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
         return " or ".join(_type_name(a) for a in typing.get_args(tp) if a is not type(None))
     if dataclasses.is_dataclass(tp):
@@ -112,6 +117,8 @@ def _convert(tp, value, key: str, source: str | None):
         for option in options:
             if option is type(None):
                 continue
+            if dataclasses.is_dataclass(option) and isinstance(value, dict):
+                return _convert(option, value, key, source)   # a table: its own errors
             try:
                 return _convert(option, value, key, source)
             except InputError:
@@ -146,6 +153,11 @@ def _convert(tp, value, key: str, source: str | None):
             raise bad
         item_type = typing.get_args(tp)[0]
         return tuple(_convert(item_type, item, f"{key}[{i}]", source) for i, item in enumerate(value))
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise bad
+        item_type = typing.get_args(tp)[1]
+        return {name: _convert(item_type, item, f"{key}.{name}", source) for name, item in value.items()}
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise bad
@@ -201,8 +213,11 @@ def to_mapping(instance) -> dict:
             continue
         if dataclasses.is_dataclass(value):
             value = to_mapping(value)
+        elif isinstance(value, dict):
+            value = {k: to_mapping(v) if dataclasses.is_dataclass(v) else v for k, v in value.items()}
         elif isinstance(value, tuple):
-            value = [list(v) if isinstance(v, tuple) else v for v in value]
+            value = [to_mapping(v) if dataclasses.is_dataclass(v) else list(v) if isinstance(v, tuple)
+                     else v for v in value]
         out[fld.name] = value
     return out
 
@@ -216,10 +231,29 @@ def describe(cls, prefix: str = "") -> list[tuple[str, str, str, str]]:
         tp = hints[fld.name]
         default = fld.default if fld.default is not dataclasses.MISSING else (
             fld.default_factory() if fld.default_factory is not dataclasses.MISSING else None)
-        if dataclasses.is_dataclass(tp):
-            rows.extend(describe(tp, key))
+        inner = _table_type(tp)
+        if inner is not None:
+            kind, sub = inner
+            rows.extend(describe(sub, {"table": key, "dict": f"{key}.<name>",
+                                       "array": f"{key}[]"}[kind]))
             continue
         doc = fld.metadata.get("doc", "")
         unit = fld.metadata.get("unit", "")
         rows.append((key, _type_name(tp), repr(default), f"{doc} [{unit}]" if unit else doc))
     return rows
+
+
+def _table_type(tp):
+    """('table' | 'dict' | 'array', dataclass) when a field holds tables, else None."""
+    if dataclasses.is_dataclass(tp):
+        return "table", tp
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is dict and dataclasses.is_dataclass(args[1]):
+        return "dict", args[1]
+    if origin is tuple and args and dataclasses.is_dataclass(args[0]):
+        return "array", args[0]
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        tables = [a for a in args if dataclasses.is_dataclass(a)]
+        if len(tables) == 1:
+            return "table", tables[0]
+    return None

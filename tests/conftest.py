@@ -31,3 +31,15 @@ def pytest_collection_modifyitems(config, items):
         for item in items:
             if "serial" in item.keywords:
                 item.add_marker(skip)
+
+
+@pytest.fixture
+def comm():
+    from mpi4py import MPI
+    return MPI.COMM_WORLD
+
+
+@pytest.fixture
+def shared_tmp(tmp_path, comm):
+    """A temporary folder that every rank sees (rank 0's tmp_path)."""
+    return Path(comm.bcast(str(tmp_path), root=0))

@@ -1,0 +1,74 @@
+"""The frame force of a picture-frame test, from the finite-element run and in closed form.
+
+A square frame of side a, hinged at its corners, holds the blank with the yarns along its
+sides; pulling two opposite corners apart shears the blank homogeneously (paper eq. 25): the
+corners' distance is d = 2 a cos(phi), phi = pi/4 - gamma/2, gamma the shear angle. With
+C12 = sin gamma and S = tau/2 (G1 G2 + G2 G1) (C11 = C22 = 1, no yarn tension), the internal
+virtual work of the blank is a^2 tau/2 cos(gamma) d gamma, and the frame's is P dd =
+P a sin(phi) d gamma. Hence the frame force
+
+    P = a tau cos(gamma) / (2 sin phi) = a tau cos(phi)        (N, with tau in N/mm, a in mm)
+
+(cos gamma = sin 2 phi = 2 sin phi cos phi). The run measures P independently of tau: the
+generalised force conjugate to the frame angle, Q = sum_i f_i dg_i/d gamma over the prescribed
+boundary nodes (f the internal nodal forces, g the prescribed displacements), divided by
+dd/d gamma = a sin(phi).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+from drape import picture_frame
+
+FILE_STEM = "frame_force"
+
+
+def corner_distance_rate(side: float, angle_deg: float) -> float:
+    """dd/d gamma (mm per rad) of the corner-to-corner distance d = 2 a cos(pi/4 - gamma/2)."""
+    return side * math.sin(math.pi / 4 - math.radians(angle_deg) / 2)
+
+
+def closed_form(side: float, angle_deg, tau):
+    """Frame force P = a tau cos(pi/4 - gamma/2) (N): ``drape.picture_frame.frame_force``."""
+    return picture_frame.frame_force(tau, angle_deg, side)
+
+
+def from_conjugate_force(side: float, angle_deg: float, q_per_deg: float) -> float:
+    """P from Q = dW/d gamma given per degree of the angle history (N mm / deg)."""
+    return q_per_deg * (180.0 / math.pi) / corner_distance_rate(side, angle_deg)
+
+
+def write(folder: Path, side: float, rows: list[dict]) -> None:
+    """frame_force.csv and frame_force.png from the run's rows (rank 0 only)."""
+    folder = Path(folder)
+    names = ["step", "t", "angle_deg", "frame_force", "frame_force_from_tau", "tau_mean"]
+    with (folder / f"{FILE_STEM}.csv").open("w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(names)
+        for row in rows:
+            writer.writerow([row[n] if isinstance(row[n], int) else repr(float(row[n])) for n in names])
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    angle = np.array([r["angle_deg"] for r in rows])
+    fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
+    ax.plot(angle, [r["frame_force"] for r in rows], color="tab:blue", lw=1.8,
+            label="finite elements (work of the frame's motion)")
+    ax.plot(angle, [r["frame_force_from_tau"] for r in rows], color="tab:orange", lw=1.0, ls="--",
+            label=r"$a\,\tau\,\cos(\pi/4-\gamma/2)$ with the FE's $\tau$")
+    ax.axhline(0.0, color="0.6", lw=0.6)
+    ax.axvline(0.0, color="0.6", lw=0.6)
+    ax.set_xlabel(r"frame shear angle $\gamma$ (deg)")
+    ax.set_ylabel("frame force P (N)")
+    ax.set_title(f"Picture frame, side {side:g} mm, {len(rows)} steps", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(folder / f"{FILE_STEM}.png")
+    plt.close(fig)

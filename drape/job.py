@@ -1,0 +1,286 @@
+"""The job configuration of ``drape run``: a TOML file read into frozen dataclasses.
+
+Every table and key is documented by its field (``setting(default, doc, check, unit)``); the
+table of keys in ``docs/fe-solver.md`` is generated from these fields (:func:`key_table`).
+Loading checks types, unknown keys, ranges, cross-field rules and the boundary formulas, and
+raises :class:`~drape.errors.InputError` naming the file and key. Lengths in mm, angles in
+degrees, forces in N.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Literal
+
+from drape.config import (describe, each, from_mapping, in_range, non_negative, positive,
+                          read_toml, setting)
+from drape.errors import InputError
+
+#: boundary names of each blank shape (gmsh physical groups); "boundary" is the whole edge
+BOUNDARY_NAMES = {"rectangle": ("left", "right", "bottom", "top"), "disc": ("edge",)}
+WHOLE_BOUNDARY = "boundary"
+
+
+@dataclasses.dataclass(frozen=True)
+class BlankConfig:
+    """The flat blank: a rectangle [0, length] x [0, width] or a disc centred at the origin."""
+
+    shape: Literal["rectangle", "disc"] = setting("rectangle", "outline of the blank")
+    length: float = setting(100.0, "rectangle: extent along x", positive, "mm")
+    width: float = setting(100.0, "rectangle: extent along y", positive, "mm")
+    radius: float = setting(50.0, "disc: radius", positive, "mm")
+    yarn_angle: float = setting(0.0, "angle theta from x to the warp yarns G1 = (cos, sin); "
+                                "the weft G2 is at theta + 90", in_range(-90.0, 90.0), "deg")
+
+
+@dataclasses.dataclass(frozen=True)
+class MeshConfig:
+    """How gmsh meshes the blank."""
+
+    cell: Literal["quadrilateral", "triangle"] = setting("quadrilateral", "element shape")
+    pattern: Literal["aligned", "free"] = setting(
+        "aligned", "'aligned': element edges follow the yarns (rectangle: theta a multiple of "
+        "45; disc: an aligned central square); 'free': gmsh's unstructured mesh (may lock)")
+    size: float = setting(5.0, "element edge length (aligned: along the yarns)", positive, "mm")
+
+
+@dataclasses.dataclass(frozen=True)
+class StepsConfig:
+    """Adaptive load stepping in the load factor t (0 to 1)."""
+
+    initial: float = setting(0.01, "first step", in_range(0.0, 1.0, lo_open=True))
+    minimum: float = setting(1e-6, "smallest step before the run fails", in_range(0.0, 1.0, lo_open=True))
+    maximum: float = setting(0.05, "largest step", in_range(0.0, 1.0, lo_open=True))
+    growth: float = setting(1.5, "step growth after an easy step", in_range(1.0, 10.0))
+    cutback: float = setting(0.5, "step reduction after a failed step", in_range(0.0, 1.0, lo_open=True, hi_open=True))
+    easy_iterations: int = setting(4, "a step converged in at most this many Newton iterations "
+                                   "lets the next one grow", positive)
+
+    def validate(self):
+        if not self.minimum <= self.initial <= self.maximum:
+            raise InputError("steps out of order", key="initial",
+                             value=(self.minimum, self.initial, self.maximum),
+                             expected="minimum <= initial <= maximum")
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverConfig:
+    """Newton's method (PETSc SNES, options prefix ``drape_``) and its linear solver."""
+
+    linear: Literal["direct", "iterative"] = setting(
+        "direct", "'direct': LU with MUMPS; 'iterative' (large meshes): GMRES with a field "
+        "split, GAMG with the rigid-body near-nullspace in the plane, GAMG out of it")
+    max_iterations: int = setting(20, "Newton iterations per step before a cutback", positive)
+    rtol: float = setting(1e-10, "convergence: residual norm relative to the step's first", positive)
+    atol: float = setting(1e-12, "convergence: absolute residual norm as a fraction of the force "
+                          "scale mu*max(K1, K2)*sqrt(blank area)", positive)
+    petsc: dict[str, bool | int | float | str] = setting(
+        {}, "any PETSc options, without the prefix (e.g. snes_monitor = \"\", "
+        "snes_linesearch_type = \"basic\"); they override the settings above")
+
+    def validate(self):
+        for name in self.petsc:
+            if not name or name.startswith("-") or any(c.isspace() for c in name):
+                raise InputError("not a PETSc option name", key=f"petsc.{name}", value=name,
+                                 expected="a name without the leading '-' or the drape_ prefix, "
+                                          "e.g. snes_monitor")
+
+
+@dataclasses.dataclass(frozen=True)
+class RegularisationConfig:
+    """Damping of the out-of-plane displacement against the last converged step."""
+
+    out_of_plane_damping: float = setting(
+        1e-3, "k in the residual term k (u_z - u_z,last) v_z; 0 disables it (a flat membrane "
+        "is then singular)", non_negative, "N/mm^3")
+
+
+@dataclasses.dataclass(frozen=True)
+class HistoryConfig:
+    """A piecewise-linear function of the load factor, named in boundary formulas."""
+
+    values: tuple[float, ...] = setting((), "waypoint values (the history's own unit)")
+    t: tuple[float, ...] | None = setting(None, "waypoint load factors, from 0 to 1, increasing "
+                                          "(default: equally spaced)", each(in_range(0.0, 1.0)))
+
+    def validate(self):
+        if len(self.values) < 2:
+            raise InputError("needs at least two waypoints", key="values", value=list(self.values),
+                             expected="an array of at least 2 numbers")
+        if self.t is not None:
+            t = self.t
+            if len(t) != len(self.values):
+                raise InputError(f"has {len(t)} entries but values has {len(self.values)}",
+                                 key="t", value=list(t), expected="one load factor per value")
+            if t[0] != 0.0 or t[-1] != 1.0 or any(b <= a for a, b in zip(t, t[1:])):
+                raise InputError("not increasing from 0 to 1", key="t", value=list(t),
+                                 expected="[0, ..., 1], strictly increasing")
+
+
+@dataclasses.dataclass(frozen=True)
+class BoundaryConfig:
+    """Displacement components prescribed on a named boundary (formulas, mm); a component left
+    out is free. Where two entries share nodes, the later entry wins there."""
+
+    on: str = setting("", "boundary name: rectangle left/right/bottom/top, disc edge, or "
+                      "'boundary' (the whole outline)")
+    ux: str | None = setting(None, "x displacement formula", unit="mm")
+    uy: str | None = setting(None, "y displacement formula", unit="mm")
+    uz: str | None = setting(None, "z displacement formula", unit="mm")
+
+    def validate(self):
+        if not self.on:
+            raise InputError("required key is missing", key="on",
+                             expected="the name of a boundary, e.g. \"left\"")
+        if self.ux is None and self.uy is None and self.uz is None:
+            raise InputError("no component prescribed", key="ux",
+                             expected="at least one of ux, uy, uz")
+
+
+@dataclasses.dataclass(frozen=True)
+class OutputConfig:
+    """What a run writes, and where."""
+
+    folder: str = setting("", "results folder (default: results/<config name> in the current "
+                          "directory)")
+    xdmf: bool = setting(True, "write the XDMF time series (fields.xdmf/.h5)")
+    xdmf_every: int = setting(1, "write the XDMF fields every N converged steps (and the last)",
+                              positive)
+    snapshot: Literal["final", "every", "none"] = setting(
+        "final", "partition-independent result.npz (fields gathered on rank 0, sorted by "
+        "coordinates): after the last step, after every step, or never")
+
+
+@dataclasses.dataclass(frozen=True)
+class PictureFrameConfig:
+    """Report the frame force of a picture-frame test (square blank, boundary following eq. 25)."""
+
+    angle: str = setting("", "name of the history giving the frame's shear angle (deg)")
+
+
+@dataclasses.dataclass(frozen=True)
+class JobConfig:
+    """A ``drape run`` job."""
+
+    title: str = setting("", "a label for logs and plots")
+    material: str = setting("", "material TOML file, relative to this file (default: the "
+                            "paper's three-surface model)")
+    surfaces: int | None = setting(None, "keep only the outer surface and this many inner ones",
+                                   non_negative)
+    blank: BlankConfig = setting(BlankConfig(), "the blank")
+    mesh: MeshConfig = setting(MeshConfig(), "its mesh")
+    steps: StepsConfig = setting(StepsConfig(), "load stepping")
+    solver: SolverConfig = setting(SolverConfig(), "Newton and linear solver")
+    regularisation: RegularisationConfig = setting(RegularisationConfig(), "flat-membrane regularisation")
+    history: dict[str, HistoryConfig] = setting({}, "named piecewise-linear histories of t")
+    boundary: tuple[BoundaryConfig, ...] = setting((), "prescribed displacements ([[boundary]])")
+    output: OutputConfig = setting(OutputConfig(), "results")
+    picture_frame: PictureFrameConfig | None = setting(None, "frame-force report (optional)")
+
+    def validate(self):
+        from drape.loading import CONSTANTS, FUNCTIONS, VARIABLES
+        reserved = set(VARIABLES) | set(CONSTANTS) | set(FUNCTIONS)
+        for name in self.history:
+            if not name.isidentifier() or name in reserved:
+                raise InputError("not a usable history name", key=f"history.{name}", value=name,
+                                 expected="an identifier other than " + ", ".join(sorted(reserved)))
+        if not self.boundary:
+            raise InputError("no prescribed displacement", key="boundary",
+                             expected="at least one [[boundary]] table (a blank held nowhere "
+                                      "is singular)")
+        known = BOUNDARY_NAMES[self.blank.shape] + (WHOLE_BOUNDARY,)
+        for i, entry in enumerate(self.boundary):
+            if entry.on not in known:
+                raise InputError(f"unknown boundary of a {self.blank.shape}", key=f"boundary[{i}].on",
+                                 value=entry.on, expected="one of " + ", ".join(known))
+        if self.picture_frame is not None:
+            if self.picture_frame.angle not in self.history:
+                raise InputError("not a history of this job", key="picture_frame.angle",
+                                 value=self.picture_frame.angle,
+                                 expected="one of the names under [history]: " +
+                                 (", ".join(self.history) or "(none defined)"))
+            blank = self.blank
+            if blank.shape != "rectangle" or not math.isclose(blank.length, blank.width):
+                raise InputError("the frame force needs a square blank", key="picture_frame",
+                                 expected="blank.shape = \"rectangle\" with length = width")
+
+
+@dataclasses.dataclass(frozen=True)
+class Job:
+    """A loaded job: its config, where it came from, and its material."""
+
+    config: JobConfig
+    path: Path
+    params: object  # drape.law.parameters.MaterialParameters
+
+    @property
+    def name(self) -> str:
+        return self.path.stem
+
+    def results_folder(self, override: str | None = None) -> Path:
+        if override:
+            return Path(override)
+        if self.config.output.folder:
+            return Path(self.config.output.folder)
+        return Path("results") / self.name
+
+
+def apply_overrides(data: dict, overrides: list[str] | None) -> dict:
+    """Set ``table.key=value`` entries (value in TOML syntax; a bare word is a string) in the
+    TOML data of a job, e.g. ``mesh.size=2.5``, ``output.xdmf=false``, ``mesh.cell=triangle``."""
+    import tomllib
+
+    for text in overrides or []:
+        key, sep, raw = text.partition("=")
+        names = key.strip().split(".")
+        if not sep or not all(n.strip() for n in names):
+            raise InputError("not an override", key="--set", value=text,
+                             expected="TABLE.KEY=VALUE, e.g. mesh.size=2.5")
+        try:
+            value = tomllib.loads(f"v = {raw.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw.strip()
+        table = data
+        for name in names[:-1]:
+            table = table.setdefault(name.strip(), {})
+            if not isinstance(table, dict):
+                raise InputError("not a table", key="--set", value=text,
+                                 expected=f"'{name}' to be a table of the job")
+        table[names[-1].strip()] = value
+    return data
+
+
+def load_job(path: str | Path, overrides: list[str] | None = None) -> Job:
+    """Read, validate and resolve a job file (material, formulas); raises InputError.
+    ``overrides`` are ``table.key=value`` strings applied before validation."""
+    from drape.law.parameters import MaterialParameters, load_material
+    from drape.loading import Loading
+
+    path = Path(path)
+    config = from_mapping(JobConfig, apply_overrides(read_toml(path), overrides), source=str(path))
+    if config.material:
+        material_path = (path.parent / config.material)
+        if not material_path.is_file():
+            raise InputError("material file not found", source=str(path), key="material",
+                             value=config.material,
+                             expected=f"a TOML file relative to {path.parent} (looked for {material_path})")
+        params = load_material(material_path, surfaces=config.surfaces)
+    else:
+        params = MaterialParameters()
+        if config.surfaces is not None:
+            try:
+                params = params.with_surfaces(config.surfaces)
+            except InputError as error:
+                raise error.located(str(path)) from None
+    Loading.from_config(config, source=str(path))   # parses and test-evaluates the formulas
+    return Job(config, path, params)
+
+
+def key_table() -> str:
+    """The Markdown table of every job key (for docs/fe-solver.md)."""
+    lines = ["| key | type | default | meaning [unit] |", "|---|---|---|---|"]
+    for key, kind, default, doc in describe(JobConfig):
+        lines.append(f"| `{key}` | {kind} | `{default}` | {doc} |")
+    return "\n".join(lines)

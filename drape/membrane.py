@@ -1,0 +1,317 @@
+"""The total-Lagrangian membrane problem on the flat reference blank (DOLFINx 0.5).
+
+Unknown: the displacement u (mm), three components, continuous piecewise linear (bilinear on
+quadrilaterals) over the flat reference blank in the X-Y plane. With I32 the 3x2 embedding of
+the plane,
+
+    F = I32 + grad u   (3x2),   C = F^T F   (2x2),   E = (C - I)/2,
+
+and in the yarn frame G1 = (cos theta, sin theta), G2 = (-sin theta, cos theta) the law gives the
+thickness-integrated PK2 stress (N/mm)
+
+    S = S11 G1 G1 + S22 G2 G2 + tau/2 (G1 G2 + G2 G1),   S11 = mu K1 E11, S22 = mu K2 E22.
+
+The residual is the internal virtual work minus external point forces plus the regularisation:
+
+    R(u; v) = int S : sym(F^T grad v) dA + int k (u_z - u_z,last) v_z dA - sum_c int f_c . v dA.
+
+S11 and S22 are written in UFL; tau and its consistent tangent d tau / d C12 come from the numpy
+law at the quadrature points. Every residual evaluation computes the yarn-frame C at the
+quadrature points (a compiled :class:`dolfinx.fem.Expression`), runs the law from the
+*committed* state (so a line search may call it any number of times) and writes tau and the
+tangent into quadrature-space functions. The Jacobian is ``ufl.derivative`` of the residual with
+tau frozen (yarn tension and the whole geometric stiffness) plus the shear tangent
+``dtau/dC12 * dE12(du) * 2 dE12(v)``, the regularisation and the point stiffnesses.
+
+The law's state (gamma_p, the centres c_1..c_n, gamma_max) lives in quadrature-space functions
+too; :meth:`MembraneProblem.commit` writes the last trial state there after a converged step,
+:meth:`MembraneProblem.restore` goes back to the committed displacement after a failed one.
+
+Quadrature: 2x2 Gauss points on quadrilaterals (degree 2), the centroid on triangles (degree 1,
+exact for linear triangles). The regularisation and point contributions use degree 2 on both
+(a one-point rule would leave the out-of-plane mass of linear triangles singular).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+#: quadrature degree of the law's points, by cell type name
+LAW_DEGREE = {"quadrilateral": 2, "triangle": 1}
+#: quadrature degree of the regularisation and point contributions
+CONTRIBUTION_DEGREE = 2
+
+
+class PointContribution:
+    """Forces at quadrature points that the residual and the Jacobian include (e.g. contact).
+
+    Before every residual evaluation the problem calls :meth:`evaluate` with the current
+    positions x = X + u and displacements u at its quadrature points (P, 3); it returns the
+    force per unit reference area on the membrane f (P, 3), N/mm^2, and the stiffness
+    K = -df/du (P, 3, 3), N/mm^3. :meth:`setup` is called once with the reference points
+    (P, 2); :meth:`commit` after every converged step (friction history, say).
+    """
+
+    name = "contribution"
+
+    def setup(self, reference_points: np.ndarray) -> None:
+        self.reference_points = reference_points
+
+    def evaluate(self, positions: np.ndarray, displacements: np.ndarray):
+        raise NotImplementedError
+
+    def commit(self) -> None:
+        pass
+
+
+class MembraneProblem:
+    """Spaces, state, forms and the SNES callbacks of the membrane on a :class:`BlankMesh`."""
+
+    def __init__(self, blank_mesh, law, yarn_angle_deg: float, damping: float,
+                 contributions: list[PointContribution] | None = None, jit_params: dict | None = None):
+        import basix
+        import ufl
+        from dolfinx import fem
+
+        self.blank_mesh = blank_mesh
+        self.mesh = msh = blank_mesh.mesh
+        self.comm = msh.comm
+        self.law = law
+        self.damping = float(damping)
+        self.contributions = list(contributions or [])
+        self.timings = dict.fromkeys(("law", "quadrature_values", "contributions", "residual_assembly",
+                                      "jacobian_assembly"), 0.0)
+        self.counts = dict.fromkeys(("residual", "jacobian", "law"), 0)
+        jit = dict(jit_params or {})
+
+        cell_name = msh.topology.cell_type.name
+        basix_cell = getattr(basix.CellType, cell_name)
+        self.degree = LAW_DEGREE[cell_name]
+        self.points, self.weights = basix.make_quadrature(basix_cell, self.degree)
+        nq = self.nq = len(self.weights)
+        self.n_cells = msh.topology.index_map(2).size_local
+        self.cells = np.arange(self.n_cells, dtype=np.int32)
+
+        # --- spaces and functions
+        self.V = fem.VectorFunctionSpace(msh, ("CG", 1), dim=3)
+        self.u = fem.Function(self.V, name="displacement")
+        self.u_committed = fem.Function(self.V, name="committed_displacement")
+        q_element = ufl.FiniteElement("Quadrature", msh.ufl_cell(), self.degree, quad_scheme="default")
+        self.Q = fem.FunctionSpace(msh, q_element)
+        self.qdofs = self.Q.dofmap.list.array.reshape(-1, nq)[: self.n_cells].ravel()
+        self.tau = fem.Function(self.Q, name="tau")
+        self.dtau = fem.Function(self.Q, name="dtau_dC12")
+        self.gamma_p = fem.Function(self.Q, name="gamma_p")
+        self.gamma_max = fem.Function(self.Q, name="gamma_max_deg")
+        self.centres = [fem.Function(self.Q, name=f"centre_{k + 1}") for k in range(law.n)]
+        params = law.params
+        self.tau.x.array[:] = 0.0
+        self.dtau.x.array[:] = law.two_mu_ksh   # elastic until the first evaluation
+
+        # --- kinematics in UFL
+        theta = np.radians(yarn_angle_deg)
+        self.yarn_angle_deg = float(yarn_angle_deg)
+        G1 = ufl.as_vector([np.cos(theta), np.sin(theta)])
+        G2 = ufl.as_vector([-np.sin(theta), np.cos(theta)])
+        I32 = ufl.as_matrix([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
+        u, v, du = self.u, ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
+        F = I32 + ufl.grad(u)
+        C = F.T * F
+        C11, C22, C12 = ufl.dot(G1, C * G1), ufl.dot(G2, C * G2), ufl.dot(G1, C * G2)
+
+        def dE12(w):
+            return ufl.dot(G1, ufl.sym(F.T * ufl.grad(w)) * G2)
+
+        P = ufl.outer(G1, G2) + ufl.outer(G2, G1)
+        S = (params.mu * params.K1 * 0.5 * (C11 - 1.0) * ufl.outer(G1, G1)
+             + params.mu * params.K2 * 0.5 * (C22 - 1.0) * ufl.outer(G2, G2)
+             + 0.5 * self.tau * P)
+        dx_law = ufl.dx(domain=msh, metadata={"quadrature_degree": self.degree})
+        dx_extra = ufl.dx(domain=msh, metadata={"quadrature_degree": CONTRIBUTION_DEGREE})
+        internal = ufl.inner(S, ufl.sym(F.T * ufl.grad(v))) * dx_law
+        jacobian = ufl.derivative(internal, u, du) + self.dtau * dE12(du) * 2.0 * dE12(v) * dx_law
+        residual = internal
+        self.damping_constant = fem.Constant(msh, self.damping)
+        k = self.damping_constant
+        residual += k * (u[2] - self.u_committed[2]) * v[2] * dx_extra
+        jacobian += k * du[2] * v[2] * dx_extra
+        regularisation_work = 0.5 * k * (u[2] - self.u_committed[2]) ** 2 * dx_extra
+
+        # --- point contributions: quadrature functions written before every assembly
+        self.extra_points, self.extra_weights = basix.make_quadrature(basix_cell, CONTRIBUTION_DEGREE)
+        n_extra = len(self.extra_weights)
+        self._contribution_data = []
+        if self.contributions:
+            fe = ufl.VectorElement("Quadrature", msh.ufl_cell(), CONTRIBUTION_DEGREE, dim=3,
+                                   quad_scheme="default")
+            te = ufl.TensorElement("Quadrature", msh.ufl_cell(), CONTRIBUTION_DEGREE, shape=(3, 3),
+                                   quad_scheme="default")
+            Qf, Qk = fem.FunctionSpace(msh, fe), fem.FunctionSpace(msh, te)
+            x_ref = fem.Expression(ufl.SpatialCoordinate(msh), self.extra_points, jit_params=jit)
+            reference = x_ref.eval(self.cells).reshape(-1, 2)
+            for contribution in self.contributions:
+                force, stiffness = fem.Function(Qf), fem.Function(Qk)
+                residual -= ufl.inner(force, v) * dx_extra
+                jacobian += ufl.inner(stiffness * du, v) * dx_extra
+                contribution.setup(reference)
+                dofs_f = Qf.dofmap.list.array.reshape(-1, n_extra)[: self.n_cells]
+                dofs_k = Qk.dofmap.list.array.reshape(-1, n_extra)[: self.n_cells]
+                self._contribution_data.append((contribution, force, stiffness, dofs_f, dofs_k))
+            X = ufl.as_vector([ufl.SpatialCoordinate(msh)[0], ufl.SpatialCoordinate(msh)[1], 0.0])
+            self._extra_state = fem.Expression(ufl.as_vector([X[i] + u[i] for i in range(3)]
+                                                             + [u[i] for i in range(3)]),
+                                               self.extra_points, jit_params=jit)
+
+        self.residual_form = fem.form(residual, jit_params=jit)
+        self.jacobian_form = fem.form(jacobian, jit_params=jit)
+        self.internal_form = fem.form(internal, jit_params=jit)
+        self.regularisation_work_form = fem.form(regularisation_work, jit_params=jit)
+
+        # --- values at the law's points: C in the yarn frame; deformed yarn directions (output)
+        self._yarn_C = fem.Expression(ufl.as_vector([C11, C22, C12]), self.points, jit_params=jit)
+        self._directions = fem.Expression(ufl.as_vector([(F * G1)[i] for i in range(3)]
+                                                        + [(F * G2)[i] for i in range(3)]),
+                                          self.points, jit_params=jit)
+        detJ = fem.Expression(ufl.JacobianDeterminant(msh), self.points, jit_params=jit)
+        weights = np.abs(detJ.eval(self.cells)).reshape(self.n_cells, nq) * self.weights
+        self.cell_areas = weights.sum(axis=1)
+        self._average_weights = weights / self.cell_areas[:, None]
+        x_points = fem.Expression(ufl.SpatialCoordinate(msh), self.points, jit_params=jit)
+        self.point_coordinates = x_points.eval(self.cells).reshape(-1, 2)
+
+        self.bcs = []
+        self.response = None
+        self._evaluated_at = None
+
+    # --- the law at the quadrature points ------------------------------------------------------
+    def committed_state(self):
+        from drape.law.nested_surface import LawState
+        q = self.qdofs
+        centres = np.array([c.x.array[q] for c in self.centres]).reshape(self.law.n, q.size)
+        return LawState(self.gamma_p.x.array[q].copy(), centres, self.gamma_max.x.array[q].copy())
+
+    def evaluate(self) -> None:
+        """Run the law at every local quadrature point for the current u, from the committed
+        state; write tau and its tangent; evaluate the point contributions."""
+        start = time.perf_counter()
+        C = self._yarn_C.eval(self.cells).reshape(-1, 3)
+        middle = time.perf_counter()
+        response = self.law.update(self.committed_state(), C[:, 0], C[:, 1], C[:, 2])
+        end = time.perf_counter()
+        # owned cells only: assembly visits owned cells, so ghost entries of quadrature
+        # functions are never read (and are not kept up to date)
+        self.tau.x.array[self.qdofs] = response.tau
+        self.dtau.x.array[self.qdofs] = response.dtau_dC12
+        self.response = response
+        self.timings["quadrature_values"] += middle - start + time.perf_counter() - end
+        self.timings["law"] += end - middle
+        self.counts["law"] += 1
+        if self._contribution_data:
+            start = time.perf_counter()
+            values = self._extra_state.eval(self.cells).reshape(-1, 6)
+            for contribution, force, stiffness, dofs_f, dofs_k in self._contribution_data:
+                f, K = contribution.evaluate(values[:, :3], values[:, 3:])
+                _write_blocked(force, dofs_f, np.asarray(f).reshape(-1, 3))
+                _write_blocked(stiffness, dofs_k, np.asarray(K).reshape(-1, 9))
+            self.timings["contributions"] += time.perf_counter() - start
+        self._evaluated_at = self.u.x.array.copy()
+
+    def _ensure_evaluated(self) -> None:
+        if self._evaluated_at is None or not np.array_equal(self._evaluated_at, self.u.x.array):
+            self.evaluate()
+
+    # --- SNES callbacks ------------------------------------------------------------------------
+    def _take(self, x) -> None:
+        from petsc4py import PETSc
+        # x may be a line-search work vector; its ghosts are read by apply_lifting and set_bc
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        x.copy(self.u.vector)
+        self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
+    def residual(self, snes, x, b) -> None:
+        from dolfinx.fem import petsc as fpetsc
+        from petsc4py import PETSc
+        self._take(x)
+        self.evaluate()
+        start = time.perf_counter()
+        with b.localForm() as local:
+            local.set(0.0)
+        fpetsc.assemble_vector(b, self.residual_form)
+        fpetsc.apply_lifting(b, [self.jacobian_form], bcs=[self.bcs], x0=[x], scale=-1.0)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        fpetsc.set_bc(b, self.bcs, x, -1.0)
+        self.timings["residual_assembly"] += time.perf_counter() - start
+        self.counts["residual"] += 1
+
+    def jacobian(self, snes, x, A, P) -> None:
+        from dolfinx.fem import petsc as fpetsc
+        self._take(x)
+        self._ensure_evaluated()
+        start = time.perf_counter()
+        A.zeroEntries()
+        fpetsc.assemble_matrix(A, self.jacobian_form, bcs=self.bcs)
+        A.assemble()
+        self.timings["jacobian_assembly"] += time.perf_counter() - start
+        self.counts["jacobian"] += 1
+
+    def create_vector(self):
+        from dolfinx.fem import petsc as fpetsc
+        return fpetsc.create_vector(self.residual_form)
+
+    def create_matrix(self):
+        from dolfinx.fem import petsc as fpetsc
+        return fpetsc.create_matrix(self.jacobian_form)
+
+    # --- steps ------------------------------------------------------------------------------------
+    def commit(self) -> None:
+        """Make the converged step the committed state (law, displacement, contributions)."""
+        self._ensure_evaluated()
+        trial, q = self.response.trial, self.qdofs
+        self.gamma_p.x.array[q] = trial.gamma_p
+        self.gamma_max.x.array[q] = trial.gamma_max_deg
+        for k, centre in enumerate(self.centres):
+            centre.x.array[q] = trial.centres[k]
+        self.u_committed.x.array[:] = self.u.x.array
+        for contribution in self.contributions:
+            contribution.commit()
+
+    def restore(self) -> None:
+        """Back to the committed displacement after a failed attempt (the law's state was never
+        changed by the attempt)."""
+        self.u.x.array[:] = self.u_committed.x.array
+        self._evaluated_at = None
+
+    # --- quantities for output --------------------------------------------------------------------
+    def internal_force(self):
+        """Assembled internal force vector (N), no boundary conditions, ghosts summed."""
+        from dolfinx.fem import petsc as fpetsc
+        from petsc4py import PETSc
+        vector = fpetsc.assemble_vector(self.internal_form)
+        vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return vector
+
+    def regularisation_work(self) -> float:
+        """Work of the damping over the current step, 1/2 k int (u_z - u_z,last)^2 dA (N mm)."""
+        from dolfinx import fem
+        return self.comm.allreduce(fem.assemble_scalar(self.regularisation_work_form))
+
+    def cell_average(self, values: np.ndarray) -> np.ndarray:
+        """Area-weighted average over each local cell of values at the law's points,
+        (n_cells * nq, ...) -> (n_cells, ...)."""
+        values = np.asarray(values, dtype=float).reshape(self.n_cells, self.nq, -1)
+        averaged = np.einsum("cq,cqk->ck", self._average_weights, values)
+        return averaged[:, 0] if averaged.shape[1] == 1 else averaged
+
+    def yarn_directions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Deformed warp and weft directions F G1, F G2 at the law's points, (P, 3) each."""
+        values = self._directions.eval(self.cells).reshape(-1, 6)
+        return values[:, :3], values[:, 3:]
+
+
+def _write_blocked(function, dofs, values) -> None:
+    """Write (cells*points, bs) values into a blocked quadrature function."""
+    bs = function.function_space.dofmap.index_map_bs
+    index = (dofs.reshape(-1, 1) * bs + np.arange(bs)).ravel()
+    function.x.array[index] = values.ravel()

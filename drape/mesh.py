@@ -1,0 +1,70 @@
+"""The blank's mesh: built by gmsh on rank 0 (``geometry/blank.py``), distributed by DOLFINx.
+
+:func:`create_blank_mesh` returns a :class:`BlankMesh`: the DOLFINx mesh (topological and
+geometric dimension 2, the flat reference in mm), its facet tags and the map from boundary names
+to tags. An error while meshing on rank 0 is broadcast so that every rank raises the same
+:class:`~drape.errors.InputError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass
+class BlankMesh:
+    mesh: object                 # dolfinx.mesh.Mesh
+    facet_tags: object           # dolfinx.mesh.MeshTags (dimension 1)
+    boundaries: dict[str, int]   # name -> facet tag
+    description: str
+
+    def facets(self, name: str) -> np.ndarray:
+        """Local facet indices of a named boundary ("boundary": the whole outline)."""
+        from dolfinx import mesh as dmesh
+        if name == "boundary":
+            self.mesh.topology.create_connectivity(1, 2)
+            return dmesh.exterior_facet_indices(self.mesh.topology)
+        return self.facet_tags.find(self.boundaries[name])
+
+
+def create_blank_mesh(comm, blank, mesh_config) -> BlankMesh:
+    """Mesh the blank described by the job's ``[blank]`` and ``[mesh]`` tables."""
+    import gmsh
+    from dolfinx.io import gmshio
+
+    from drape.errors import InputError
+    from drape.geometry.blank import BLANK, build_blank
+
+    error, names = None, None
+    if comm.rank == 0:
+        gmsh.initialize(readConfigFiles=False)
+        gmsh.option.setNumber("General.Terminal", 0)
+        try:
+            names = build_blank(gmsh, blank.shape, length=blank.length, width=blank.width,
+                                radius=blank.radius, yarn_angle=blank.yarn_angle,
+                                cell=mesh_config.cell, pattern=mesh_config.pattern,
+                                size=mesh_config.size)
+        except InputError as failure:
+            error = failure
+        except Exception as failure:  # gmsh raises plain Exceptions with its log message
+            error = InputError(f"gmsh could not mesh the blank ({failure})", key="mesh",
+                               expected="a blank and mesh.size gmsh can mesh")
+        if error is not None:
+            gmsh.finalize()
+    error = comm.bcast(error, root=0)
+    if error is not None:
+        raise error
+    try:
+        msh, _, facet_tags = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2)
+    finally:
+        if comm.rank == 0:
+            gmsh.finalize()
+    names = comm.bcast(names, root=0)
+    boundaries = {name: tag for name, tag in names.items() if name != BLANK}
+    cells = msh.topology.index_map(2).size_global
+    kind = msh.topology.cell_type.name
+    description = (f"{cells} {kind} cells, {msh.geometry.index_map().size_global} nodes, "
+                   f"{mesh_config.pattern} pattern")
+    return BlankMesh(msh, facet_tags, boundaries, description)

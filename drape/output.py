@@ -1,0 +1,149 @@
+"""What a run writes, one converged step at a time, in its results folder.
+
+* ``fields.xdmf`` / ``fields.h5``: one XDMF time series (time = load factor t): the mesh once,
+  then per written step the displacement (mm, nodal) and cell fields (DG0): the shear angle
+  gamma_t and the plastic shear angle gamma_p (deg), tau and the yarn tensions S11, S22 (N/mm),
+  the deformed warp and weft directions (unit vectors), the active surface (-1 elastic, k the
+  surface index; a cell average of its points) -- quadrature values averaged over each cell.
+  The file is closed after every step, so it is readable whenever a step has converged.
+* ``steps.csv``: one row per converged step (written and flushed as it converges).
+* ``result.npz``: fields gathered on rank 0 and sorted by coordinates, independent of the
+  number of ranks (nodes: x, y, u; law points: x, y, tau, gamma_p, gamma_t, ...).
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+FIELDS_FILE = "fields.xdmf"
+STEPS_FILE = "steps.csv"
+SNAPSHOT_FILE = "result.npz"
+
+
+class ResultsWriter:
+    def __init__(self, folder: Path, problem, *, xdmf: bool = True, xdmf_every: int = 1,
+                 snapshot: str = "final"):
+        from dolfinx import fem, io
+
+        self.folder = Path(folder)
+        self.problem = problem
+        self.comm = problem.comm
+        if self.comm.rank == 0:
+            self.folder.mkdir(parents=True, exist_ok=True)
+        self.comm.barrier()
+        self.xdmf, self.xdmf_every, self.snapshot = xdmf, xdmf_every, snapshot
+        self._csv = None
+        self._columns = None
+        msh = problem.mesh
+        W0 = fem.FunctionSpace(msh, ("DG", 0))
+        W3 = fem.VectorFunctionSpace(msh, ("DG", 0), dim=3)
+        self.cell_fields = {
+            name: fem.Function(space, name=name) for name, space in (
+                ("shear_angle_deg", W0), ("plastic_shear_angle_deg", W0), ("tau", W0),
+                ("warp_tension", W0), ("weft_tension", W0), ("active_surface", W0),
+                ("warp_direction", W3), ("weft_direction", W3))}
+        n = problem.n_cells
+        self._dg0 = W0.dofmap.list.array[:n]
+        self._dg3 = W3.dofmap.list.array[:n]
+        if self.xdmf:
+            with io.XDMFFile(self.comm, str(self.folder / FIELDS_FILE), "w") as stream:
+                stream.write_mesh(msh)
+
+    # --- per step -----------------------------------------------------------------------------------
+    def write_step(self, row: dict, t: float, *, last: bool = False) -> None:
+        """Append the CSV row; write the fields if due (every ``xdmf_every`` steps, and the last)."""
+        self._write_row(row)
+        due = last or row["step"] % self.xdmf_every == 0
+        if self.xdmf and due:
+            self.write_fields(t)
+        if self.snapshot == "every" or (self.snapshot == "final" and last):
+            self.write_snapshot(t)
+
+    def _write_row(self, row: dict) -> None:
+        if self.comm.rank != 0:
+            return
+        if self._csv is None:
+            self._columns = list(row)
+            self._stream = (self.folder / STEPS_FILE).open("w", newline="")
+            self._csv = csv.writer(self._stream)
+            self._csv.writerow(self._columns)
+        self._csv.writerow([_text(row.get(name, "")) for name in self._columns])
+        self._stream.flush()
+
+    def update_cell_fields(self) -> None:
+        """Cell averages of the committed response at the law's points."""
+        p = self.problem
+        response = p.response
+        values = {"shear_angle_deg": response.gamma_t_deg,
+                  "plastic_shear_angle_deg": np.degrees(response.trial.gamma_p),
+                  "tau": response.tau, "warp_tension": response.S11, "weft_tension": response.S22,
+                  "active_surface": response.active_surface}
+        for name, data in values.items():
+            function = self.cell_fields[name]
+            function.x.array[self._dg0] = p.cell_average(data)
+            function.x.scatter_forward()
+        warp, weft = p.yarn_directions()
+        for name, data in (("warp_direction", warp), ("weft_direction", weft)):
+            average = p.cell_average(data)
+            average /= np.linalg.norm(average, axis=1)[:, None]
+            function = self.cell_fields[name]
+            function.x.array[(self._dg3[:, None] * 3 + np.arange(3)).ravel()] = average.ravel()
+            function.x.scatter_forward()
+
+    def write_fields(self, t: float) -> None:
+        from dolfinx import io
+        self.update_cell_fields()
+        with io.XDMFFile(self.comm, str(self.folder / FIELDS_FILE), "a") as stream:
+            stream.write_function(self.problem.u, t)
+            for function in self.cell_fields.values():
+                stream.write_function(function, t)
+
+    def write_snapshot(self, t: float) -> None:
+        """result.npz: nodal and point fields gathered on rank 0, sorted by coordinates."""
+        data = gather_sorted(self.problem)
+        if self.comm.rank == 0:
+            np.savez(self.folder / SNAPSHOT_FILE, t=t, **data)
+
+    def close(self) -> None:
+        if self._csv is not None:
+            self._stream.close()
+            self._csv = None
+
+
+def gather_sorted(problem) -> dict[str, np.ndarray] | None:
+    """Nodal u and point values of the committed response, on rank 0, in coordinate order
+    (the same for any number of ranks); None on other ranks."""
+    comm = problem.comm
+    V = problem.V
+    n_owned = V.dofmap.index_map.size_local
+    nodes = V.tabulate_dof_coordinates()[:n_owned, :2]
+    u = problem.u.x.array.reshape(-1, 3)[:n_owned]
+    response = problem.response
+    points = problem.point_coordinates
+    point_values = np.column_stack([response.tau, np.degrees(response.trial.gamma_p),
+                                    response.gamma_t_deg, response.dtau_dC12])
+    gathered = comm.gather((nodes, u, points, point_values), root=0)
+    if comm.rank != 0:
+        return None
+    nodes, u, points, point_values = (np.concatenate(part) for part in zip(*gathered))
+    node_order = _coordinate_order(nodes)
+    point_order = _coordinate_order(points)
+    return {"node_xy": nodes[node_order], "u": u[node_order],
+            "point_xy": points[point_order], "tau": point_values[point_order, 0],
+            "gamma_p_deg": point_values[point_order, 1], "gamma_t_deg": point_values[point_order, 2],
+            "dtau_dC12": point_values[point_order, 3]}
+
+
+def _coordinate_order(xy: np.ndarray) -> np.ndarray:
+    scale = max(1.0, float(np.abs(xy).max())) if xy.size else 1.0
+    key = np.round(xy / scale, 9)
+    return np.lexsort((key[:, 1], key[:, 0]))
+
+
+def _text(value) -> str:
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    return str(value)

@@ -1,0 +1,203 @@
+"""Run a forming job from a TOML config: the blank is meshed, held and moved as the config says,
+and solved in adaptive load steps with the nested-surface law at every quadrature point.
+
+    drape run configs/picture_frame.toml
+    mpirun -n 2 drape run configs/bias_extension.toml --petsc-option snes_monitor
+
+Writes results/<config name>/ (or --output): fields.xdmf (+ .h5), steps.csv, result.npz and,
+for a picture-frame job, frame_force.csv and frame_force.png. Every converged step is written
+as it converges; a run that fails keeps what converged (exit code 1). See docs/fe-solver.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+HELP = "run a forming job from a TOML config (serial or under mpirun)"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("config", metavar="CONFIG.toml", help="the job file")
+    parser.add_argument("--output", default=None, metavar="DIR",
+                        help="results folder (default: output.folder of the config, else "
+                             "results/<config name>)")
+    parser.add_argument("--petsc-option", action="append", default=[], metavar="NAME[=VALUE]",
+                        help="a PETSc option for the solver (prefix drape_ added), e.g. "
+                             "snes_monitor or ksp_type=gmres; repeatable; overrides the config")
+    parser.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=VALUE",
+                        help="override a config value (TOML syntax), e.g. mesh.size=2.5 or "
+                             "output.xdmf=false; repeatable")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def main(args) -> int:
+    from mpi4py import MPI
+
+    from drape.job import load_job
+    from drape.solver import parse_option
+
+    options = dict(parse_option(text) for text in args.petsc_option)
+    job = load_job(args.config, overrides=args.set)
+    comm = MPI.COMM_WORLD
+    log = None if args.quiet else (print if comm.rank == 0 else None)
+    summary = run_job(job, comm, output=args.output, petsc_options=options, log=log)
+    if comm.rank == 0 and not args.quiet:
+        print(f"drape run: {summary.steps} steps to t = {summary.t:g} in {summary.seconds:.1f} s; "
+              f"results in {summary.folder}")
+    return 0
+
+
+@dataclasses.dataclass
+class RunSummary:
+    steps: int
+    t: float
+    seconds: float
+    folder: Path
+    rows: list
+    timings: dict
+
+
+def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, log=None,
+            jit_params=None) -> RunSummary:
+    """Run a loaded :class:`~drape.job.Job` on ``comm`` (default COMM_WORLD).
+
+    on_step(step_row, problem) is called on every rank after each converged step is written.
+    Raises RunFailed (results so far written) when a step does not converge.
+    """
+    from mpi4py import MPI
+
+    from drape import frame_force
+    from drape.constraints import PrescribedMotion
+    from drape.errors import RunFailed
+    from drape.law.nested_surface import NestedSurfaceLaw
+    from drape.loading import Loading
+    from drape.membrane import MembraneProblem
+    from drape.mesh import create_blank_mesh
+    from drape.output import ResultsWriter
+    from drape.solver import NewtonSolver, run_load_steps
+
+    _quiet_jit_logging()
+    comm = comm or MPI.COMM_WORLD
+    config = job.config
+    started = time.perf_counter()
+    say = log or (lambda *_: None)
+
+    blank_mesh = create_blank_mesh(comm, config.blank, config.mesh)
+    say(f"drape run: {job.path}: {blank_mesh.description}, {comm.size} rank(s)")
+    law = NestedSurfaceLaw(job.params)
+    loading = Loading.from_config(config, source=str(job.path))
+    problem = MembraneProblem(blank_mesh, law, config.blank.yarn_angle,
+                              config.regularisation.out_of_plane_damping, jit_params=jit_params)
+    motion = PrescribedMotion(problem.V, blank_mesh, loading)
+    problem.bcs = motion.bcs
+    area = comm.allreduce(problem.cell_areas.sum())
+    force_scale = job.params.mu * max(job.params.K1, job.params.K2) * math.sqrt(area)
+    solver = NewtonSolver(problem, config.solver, force_scale, petsc_options)
+    folder = job.results_folder(output)
+    writer = ResultsWriter(folder, problem, xdmf=config.output.xdmf,
+                           xdmf_every=config.output.xdmf_every, snapshot=config.output.snapshot)
+    frame = config.picture_frame
+    side = config.blank.length
+    yarn_modulus = (job.params.mu * job.params.K1, job.params.mu * job.params.K2)
+    if config.mesh.pattern == "free":
+        say("drape run: warning: mesh.pattern = \"free\": element edges do not follow the yarns; "
+            "with stiff yarns such meshes lock in tension (too stiff, yarns stretched: watch "
+            "max_yarn_strain in steps.csv). mesh.pattern = \"aligned\" avoids it; see "
+            "docs/fe-solver.md")
+    rows, frame_rows = [], []
+    ledger = {"external": 0.0, "regularisation": 0.0, "f": None, "g": None}
+
+    def record(step, t, iterations=0, cutbacks=0, dt=0.0, residual=0.0, seconds=0.0):
+        force = problem.internal_force()
+        f_prescribed = force.array_r[motion.prescribed_dofs].copy()
+        u_prescribed = problem.u.x.array[motion.prescribed_dofs].copy()
+        if ledger["f"] is not None:
+            local = 0.5 * (ledger["f"] + f_prescribed) @ (u_prescribed - ledger["g"])
+            ledger["external"] += comm.allreduce(float(local))
+        ledger["f"], ledger["g"] = f_prescribed, u_prescribed
+        response = problem.response
+        local_max = float(np.abs(response.gamma_t_deg).max()) if response.tau.size else 0.0
+        row = {"step": step, "t": t, "dt": dt, "newton_iterations": iterations,
+               "cutbacks": cutbacks, "residual_norm": residual}
+        row.update(loading.history_values(t))
+        for name, value in motion.reactions(force).items():
+            row.update({f"{name}_Fx": value[0], f"{name}_Fy": value[1], f"{name}_Fz": value[2]})
+        row["external_work"] = ledger["external"]
+        row["regularisation_work"] = ledger["regularisation"]
+        row["regularisation_share"] = (ledger["regularisation"] / abs(ledger["external"])
+                                       if ledger["external"] != 0.0 else 0.0)
+        row["max_shear_angle_deg"] = comm.allreduce(local_max, op=MPI.MAX)
+        strain = max(float(np.abs(response.S11).max()) / yarn_modulus[0],
+                     float(np.abs(response.S22).max()) / yarn_modulus[1]) if response.tau.size else 0.0
+        row["max_yarn_strain"] = comm.allreduce(strain, op=MPI.MAX)
+        tau_sum = comm.allreduce(float(response.tau.sum()))
+        tau_count = comm.allreduce(response.tau.size)
+        row["tau_mean"] = tau_sum / tau_count
+        if frame is not None:
+            angle = row[frame.angle]
+            q = motion.conjugate_force(force, t, frame.angle)
+            row["frame_force"] = (frame_force.from_conjugate_force(side, angle, q)
+                                  if step > 0 else 0.0)
+            row["frame_force_from_tau"] = float(frame_force.closed_form(side, angle, row["tau_mean"]))
+            frame_rows.append({"step": step, "t": t, "angle_deg": angle, **{
+                k: row[k] for k in ("frame_force", "frame_force_from_tau", "tau_mean")}})
+        force.destroy()
+        row["seconds"] = seconds
+        rows.append(row)
+        return row
+
+    def attempt(t):
+        motion.set_load(t)
+        return solver.solve()
+
+    def accept(step):
+        ledger["regularisation"] += problem.regularisation_work()
+        problem.commit()
+        row = record(step.number, step.t, step.iterations, step.cutbacks, step.dt,
+                     step.residual, step.seconds)
+        writer.write_step(row, step.t, last=step.t >= 1.0 - 1e-12)
+        extras = "".join(f"  {name}={row[name]:.4g}" for name in loading.histories)
+        say(f"step {step.number:4d}  t={step.t:.5f}{extras}  newton={step.iterations}"
+            f"{f'  cutbacks={step.cutbacks}' if step.cutbacks else ''}"
+            f"  max|gamma|={row['max_shear_angle_deg']:.3f} deg")
+        if on_step is not None:
+            on_step(row, problem)
+
+    try:
+        motion.set_load(0.0)
+        problem.evaluate()
+        writer.write_step(record(0, 0.0), 0.0)
+        run_load_steps(config.steps, loading.breakpoints(), attempt, accept, problem.restore, log=say)
+    except RunFailed as failure:
+        problem.restore()
+        problem.evaluate()
+        if config.output.snapshot != "none":
+            writer.write_snapshot(rows[-1]["t"])
+        raise RunFailed(f"{failure}; results up to t = {rows[-1]['t']:.6g} "
+                        f"(step {rows[-1]['step']}) are in {folder}") from None
+    finally:
+        writer.close()
+        solver.close()
+        if frame is not None and comm.rank == 0 and len(frame_rows) > 1:
+            frame_force.write(folder, side, frame_rows)
+    timings = dict(problem.timings)
+    timings.update({f"count_{k}": v for k, v in problem.counts.items()})
+    return RunSummary(rows[-1]["step"], rows[-1]["t"], time.perf_counter() - started, folder,
+                      rows, timings)
+
+
+def _quiet_jit_logging() -> None:
+    """The JIT compiler (cffi through distutils) logs every compilation at INFO level on the
+    root logger; keep warnings only."""
+    import logging
+    root = logging.getLogger()
+    if not any(getattr(f, "_drape", False) for f in root.filters):
+        keep = logging.Filter()
+        keep.filter = lambda record: record.levelno >= logging.WARNING
+        keep._drape = True
+        root.addFilter(keep)

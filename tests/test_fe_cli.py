@@ -1,0 +1,82 @@
+"""`drape run` as users run it: serially and under `mpirun -n 2` the same results (displacement
+within 1e-8 mm and tau within 1e-8 relative, from the partition-independent result.npz); bad input is exit code 2 and
+a failed run exit code 1, each with a one-line message and no traceback."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from conftest import CONFIGS, REPO
+
+pytestmark = pytest.mark.serial
+
+NO_FIELDS = ["--set", "output.xdmf=false", "--quiet"]
+
+
+def drape(*args, ranks=1, cwd=None):
+    command = [sys.executable, "-m", "drape.cli", *map(str, args)]
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1")
+    if ranks > 1:
+        command = ["mpirun", "-n", str(ranks), "--oversubscribe", *command]
+    return subprocess.run(command, capture_output=True, text=True, cwd=cwd or REPO, env=env,
+                          timeout=900)
+
+
+@pytest.mark.parametrize("config", ["picture_frame.toml", "bias_extension.toml"])
+def test_one_and_two_ranks_give_the_same_results(tmp_path, config):
+    results = {}
+    for ranks in (1, 2):
+        folder = tmp_path / f"ranks{ranks}"
+        done = drape("run", CONFIGS / config, "--output", folder, *NO_FIELDS, ranks=ranks)
+        assert done.returncode == 0, done.stderr
+        results[ranks] = np.load(folder / "result.npz")
+        steps = (folder / "steps.csv").read_text().splitlines()
+        results[ranks, "steps"] = [line.split(",")[:2] for line in steps]
+    one, two = results[1], results[2]
+    assert results[1, "steps"] == results[2, "steps"]          # the same load steps
+    assert np.allclose(one["node_xy"], two["node_xy"], rtol=0, atol=1e-12)
+    assert np.allclose(one["point_xy"], two["point_xy"], rtol=0, atol=1e-12)
+    # displacement within 1e-8 mm (the picture frame ends back at angle 0: u ~ 0 there), tau
+    # within 1e-8 of its largest value (not 0: the cycles leave plastic shear behind)
+    assert np.abs(one["u"] - two["u"]).max() <= 1e-8
+    assert np.abs(one["tau"]).max() > 1e-3
+    assert np.abs(one["tau"] - two["tau"]).max() <= 1e-8 * np.abs(one["tau"]).max()
+
+
+def test_bad_input_is_exit_code_2_with_one_line(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text((CONFIGS / "bias_extension.toml").read_text().replace("[mesh]", "[mesh]\nsise = 3"))
+    cases = [
+        (["run", bad], "key 'mesh.sise'", "did you mean 'size'"),
+        (["run", tmp_path / "missing.toml"], "missing.toml", "file not found"),
+        (["run", CONFIGS / "bias_extension.toml", "--set", "blank.length=141"], "key 'blank.length'",
+         "does not fit a +-45 deg yarn lattice"),
+        (["run", CONFIGS / "bias_extension.toml", "--set", "mesh.size=0.01"], "key 'mesh.size'",
+         "elements"),
+        (["run", CONFIGS / "bias_extension.toml", "--set", "steps.cutback=1.5"], "key 'steps.cutback'",
+         "(0.0, 1.0)"),
+    ]
+    for args, where, what in cases:
+        done = drape(*args, "--output", tmp_path / "out")
+        assert done.returncode == 2, (args, done.stderr)
+        message = done.stderr.strip()
+        assert len(message.splitlines()) == 1 and "Traceback" not in message
+        assert where in message and what in message, message
+
+
+def test_a_failed_run_is_exit_code_1_under_mpi_too(tmp_path):
+    from test_fe_divergence import write_jump
+    config = write_jump(tmp_path)
+    for ranks in (1, 2):
+        folder = tmp_path / f"jump{ranks}"
+        done = drape("run", config, "--output", folder, "--quiet", ranks=ranks)
+        assert done.returncode == 1, done.stderr
+        lines = [line for line in done.stderr.splitlines() if line.startswith("drape run")]
+        assert len(lines) == 1 and "Traceback" not in done.stderr
+        assert "run failed: step" in lines[0] and f"are in {folder}" in lines[0]
+        assert len((folder / "steps.csv").read_text().splitlines()) > 10
