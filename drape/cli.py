@@ -21,6 +21,7 @@ SUBCOMMANDS = {
     "picture-frame": "drape.picture_frame",
     "run": "drape.run",
     "calibrate": "drape.calibrate",
+    "tools": "drape.tools_cli",
 }
 
 DESCRIPTION = """\
@@ -64,9 +65,12 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _report(message: str) -> None:
-    """One line on stderr; under MPI (every rank raises the same error) from rank 0 only."""
+    """One line on stderr; under MPI (every rank raises the same error) from rank 0 only --
+    also for commands that never import mpi4py (the launcher's rank variable says which)."""
     mpi = sys.modules.get("mpi4py.MPI")
     if mpi is not None and mpi.COMM_WORLD.rank != 0:
+        return
+    if mpi is None and os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")) != "0":
         return
     print(message, file=sys.stderr)
 

@@ -21,6 +21,9 @@ from drape.errors import InputError
 #: boundary names of each blank shape (gmsh physical groups); "boundary" is the whole edge
 BOUNDARY_NAMES = {"rectangle": ("left", "right", "bottom", "top"), "disc": ("edge",)}
 WHOLE_BOUNDARY = "boundary"
+#: a mesh.size giving fewer elements than this across the blank is refused (too coarse to
+#: say anything: one element has no interior nodes)
+MIN_ELEMENTS_ACROSS = 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,7 +35,8 @@ class BlankConfig:
     width: float = setting(100.0, "rectangle: extent along y", positive, "mm")
     radius: float = setting(50.0, "disc: radius", positive, "mm")
     yarn_angle: float = setting(0.0, "angle theta from x to the warp yarns G1 = (cos, sin); "
-                                "the weft G2 is at theta + 90", in_range(-90.0, 90.0), "deg")
+                                "the weft G2 is at theta + 90; from -90 to 90 (every direction: theta + 180 is the "
+                                "same yarn)", in_range(-90.0, 90.0), "deg")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,7 +47,8 @@ class MeshConfig:
     pattern: Literal["aligned", "free"] = setting(
         "aligned", "'aligned': element edges follow the yarns (rectangle: theta a multiple of "
         "45; disc: an aligned central square); 'free': gmsh's unstructured mesh (may lock)")
-    size: float = setting(5.0, "element edge length (aligned: along the yarns)", positive, "mm")
+    size: float = setting(5.0, "element edge length (aligned: along the yarns); at most a third "
+                          "of the blank's smallest extent", positive, "mm")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,10 +64,13 @@ class StepsConfig:
                                    "lets the next one grow", positive)
 
     def validate(self):
+        if self.minimum > self.maximum:
+            raise InputError("larger than steps.maximum", key="minimum", value=self.minimum,
+                             expected=f"minimum <= maximum = {self.maximum:g}")
         if not self.minimum <= self.initial <= self.maximum:
-            raise InputError("steps out of order", key="initial",
-                             value=(self.minimum, self.initial, self.maximum),
-                             expected="minimum <= initial <= maximum")
+            raise InputError("outside [minimum, maximum]", key="initial", value=self.initial,
+                             expected=f"minimum = {self.minimum:g} <= initial <= maximum = "
+                                      f"{self.maximum:g}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -190,6 +198,7 @@ class JobConfig:
             raise InputError("no prescribed displacement", key="boundary",
                              expected="at least one [[boundary]] table (a blank held nowhere "
                                       "is singular)")
+        self._check_mesh_size()
         known = BOUNDARY_NAMES[self.blank.shape] + (WHOLE_BOUNDARY,)
         for i, entry in enumerate(self.boundary):
             if entry.on not in known:
@@ -205,6 +214,20 @@ class JobConfig:
             if blank.shape != "rectangle" or not math.isclose(blank.length, blank.width):
                 raise InputError("the frame force needs a square blank", key="picture_frame",
                                  expected="blank.shape = \"rectangle\" with length = width")
+
+    def _check_mesh_size(self):
+        """At least MIN_ELEMENTS_ACROSS elements across the blank's smallest extent."""
+        blank = self.blank
+        if blank.shape == "rectangle":
+            extent, what = min(blank.length, blank.width), "min(blank.length, blank.width)"
+        else:
+            extent, what = 2.0 * blank.radius, "2 * blank.radius"
+        largest = extent / MIN_ELEMENTS_ACROSS
+        if self.mesh.size > largest:
+            raise InputError(f"too coarse: {extent / self.mesh.size:.2g} elements across the "
+                             f"blank", key="mesh.size", value=self.mesh.size,
+                             expected=f"at least {MIN_ELEMENTS_ACROSS} elements across the blank: "
+                                      f"mesh.size <= {what} / {MIN_ELEMENTS_ACROSS} = {largest:g} mm")
 
 
 @dataclasses.dataclass(frozen=True)

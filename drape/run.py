@@ -73,7 +73,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
     from drape import frame_force
     from drape.constraints import PrescribedMotion
-    from drape.errors import RunFailed
+    from drape.errors import InputError, RunFailed
     from drape.law.nested_surface import NestedSurfaceLaw
     from drape.loading import Loading
     from drape.membrane import MembraneProblem
@@ -87,7 +87,10 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     started = time.perf_counter()
     say = log or (lambda *_: None)
 
-    blank_mesh = create_blank_mesh(comm, config.blank, config.mesh)
+    try:
+        blank_mesh = create_blank_mesh(comm, config.blank, config.mesh)
+    except InputError as error:     # the mesher names the key; the job file is ours to add
+        raise error.located(str(job.path)) from None
     say(f"drape run: {job.path}: {blank_mesh.description}, {comm.size} rank(s)")
     law = NestedSurfaceLaw(job.params)
     loading = Loading.from_config(config, source=str(job.path))
