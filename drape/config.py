@@ -173,12 +173,13 @@ def from_mapping(cls, data: dict, *, source: str | None = None, prefix: str = ""
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     full = (lambda name: f"{prefix}.{name}" if prefix else name)
-    for key in data:
+    for key, value in data.items():
         if key not in fields:
             close = difflib.get_close_matches(key, fields, n=3, cutoff=0.6)
-            hint = f"did you mean {' or '.join(repr(c) for c in close)}? " if close else ""
-            raise InputError(f"unknown key; {hint}known keys here: {', '.join(fields)}",
-                             source=source, key=full(key))
+            hint = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
+            shown = {} if isinstance(value, dict) else {"value": value}   # a table: too long
+            raise InputError(f"unknown key{hint}", source=source, key=full(key), **shown,
+                             expected=f"one of the known keys here: {', '.join(fields)}")
     values = {}
     for name, fld in fields.items():
         if name not in data:

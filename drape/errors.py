@@ -36,7 +36,10 @@ class InputError(Exception):
             where.append(f"key '{self.key}'")
         text = ": ".join(where)
         if self.value is not _UNSET:
-            text += f" = {self.value!r}" if text else f"value {self.value!r}"
+            if self.key:
+                text += f" = {self.value!r}"
+            else:
+                text += f": value {self.value!r}" if text else f"value {self.value!r}"
         text = f"{text}: {self.problem}" if text else self.problem
         if self.expected:
             text += f"; expected {self.expected}"

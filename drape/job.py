@@ -275,6 +275,16 @@ def apply_overrides(data: dict, overrides: list[str] | None) -> dict:
     return data
 
 
+def _name_override(error: InputError, overrides: list[str] | None) -> InputError:
+    """The error, its file followed by the ``--set`` that gave the key its value, if one did."""
+    for text in reversed(overrides or []):
+        key = ".".join(n.strip() for n in text.partition("=")[0].split("."))
+        if error.key and (error.key == key or error.key.startswith((key + ".", key + "["))):
+            return InputError(error.problem, source=f"{error.source} with --set {text}",
+                              key=error.key, value=error.value, expected=error.expected)
+    return error
+
+
 def load_job(path: str | Path, overrides: list[str] | None = None) -> Job:
     """Read, validate and resolve a job file (material, formulas); raises InputError.
     ``overrides`` are ``table.key=value`` strings applied before validation."""
@@ -282,21 +292,25 @@ def load_job(path: str | Path, overrides: list[str] | None = None) -> Job:
     from drape.loading import Loading
 
     path = Path(path)
-    config = from_mapping(JobConfig, apply_overrides(read_toml(path), overrides), source=str(path))
+    data = apply_overrides(read_toml(path), overrides)
+    try:
+        config = from_mapping(JobConfig, data, source=str(path))
+    except InputError as error:
+        raise _name_override(error, overrides) from None
     if config.material:
         material_path = (path.parent / config.material)
         if not material_path.is_file():
             raise InputError("material file not found", source=str(path), key="material",
                              value=config.material,
                              expected=f"a TOML file relative to {path.parent} (looked for {material_path})")
-        params = load_material(material_path, surfaces=config.surfaces)
+        params = load_material(material_path)
     else:
         params = MaterialParameters()
-        if config.surfaces is not None:
-            try:
-                params = params.with_surfaces(config.surfaces)
-            except InputError as error:
-                raise error.located(str(path)) from None
+    if config.surfaces is not None:
+        try:
+            params = params.with_surfaces(config.surfaces)
+        except InputError as error:     # a key of the job file, not of the material's
+            raise error.located(str(path)) from None
     Loading.from_config(config, source=str(path))   # parses and test-evaluates the formulas
     return Job(config, path, params)
 

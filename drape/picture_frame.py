@@ -189,9 +189,9 @@ def main(args) -> int:
     if args.material is None:
         params = MaterialParameters()
         if args.surfaces is not None:
-            params = params.with_surfaces(args.surfaces)
+            params = params.with_surfaces(args.surfaces, key="--surfaces")
     else:
-        params = load_material(args.material, surfaces=args.surfaces)
+        params = load_material(args.material, surfaces=args.surfaces, surfaces_key="--surfaces")
     if args.history is not None:
         history = read_history(args.history)
     else:

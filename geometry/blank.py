@@ -45,10 +45,12 @@ def build_blank(gmsh, shape: str, *, length: float = 100.0, width: float = 100.0
     (boundaries) and the tag of ``blank`` (dimension 2)."""
     area = length * width if shape == "rectangle" else math.pi * radius ** 2
     estimate = area / size ** 2 * (2 if cell == "triangle" else 1)
-    if estimate > MAX_ELEMENTS:
+    if not estimate <= MAX_ELEMENTS:
+        smallest = math.sqrt(area / MAX_ELEMENTS)
         raise InputError(f"about {estimate:.3g} elements", key="mesh.size", value=size,
-                         expected=f"a size giving at most {MAX_ELEMENTS:.0e} elements "
-                                  f"(>= {math.sqrt(area / MAX_ELEMENTS):.3g} mm here)")
+                         expected=f"a size giving at most {MAX_ELEMENTS:.0e} elements " + (
+                             f"(>= {smallest:.3g} mm here)" if math.isfinite(smallest) else
+                             "(and a blank of finite area)"))
     gmsh.model.add("blank")
     quads = cell == "quadrilateral"
     angle = yarn_angle % 90.0

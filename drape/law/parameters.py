@@ -53,7 +53,7 @@ class SurfaceTable:
             rows = getattr(self, name)
             if len(rows) != len(bounds):
                 raise InputError(f"has {len(rows)} rows but gamma_max_deg has {len(bounds)} ranges",
-                                 key=name, expected=f"one row per range ({len(bounds)} rows)")
+                                 key=name, value=[list(r) for r in rows], expected=f"one row per range ({len(bounds)} rows)")
             widths = {len(r) for r in rows}
             if len(widths) > 1:
                 raise InputError("rows of different lengths", key=name, value=[list(r) for r in rows],
@@ -106,7 +106,7 @@ class MaterialParameters:
         n = len(sy) - 1
         if n > 0 and self.surfaces.n_inner != n:
             raise InputError(f"Table 2 has {self.surfaces.n_inner} inner surfaces but Sy has {n}",
-                             key="surfaces.a", expected=f"{n} columns in a and h (one per Sy_1..Sy_n)")
+                             key="surfaces.a", value=[list(r) for r in self.surfaces.a], expected=f"{n} columns in a and h (one per Sy_1..Sy_n)")
         self._check_radii_nested()
 
     def _check_radii_nested(self, limit_deg: float = 60.0):
@@ -140,10 +140,11 @@ class MaterialParameters:
         h = h[:, : self.n]
         return np.hstack([np.ones((h.shape[0], 1)), h])
 
-    def with_surfaces(self, n: int) -> "MaterialParameters":
-        """The same material with only the outer surface and the first n inner ones."""
+    def with_surfaces(self, n: int, key: str = "surfaces") -> "MaterialParameters":
+        """The same material with only the outer surface and the first n inner ones (``key``
+        names the setting of n in errors)."""
         if not 0 <= n <= self.n:
-            raise InputError(f"this material has {self.n} inner surfaces", key="surfaces", value=n,
+            raise InputError(f"this material has {self.n} inner surfaces", key=key, value=n,
                              expected=f"an integer from 0 to {self.n}")
         if n == self.n:
             return self
@@ -165,14 +166,14 @@ def polynomial(coefficients, x):
     return result
 
 
-def load_material(path: str | Path, surfaces: int | None = None) -> MaterialParameters:
-    """Read and validate a material TOML file; optionally keep only ``surfaces`` inner ones."""
+def load_material(path: str | Path, surfaces: int | None = None,
+                  surfaces_key: str = "surfaces") -> MaterialParameters:
+    """Read and validate a material TOML file; optionally keep only ``surfaces`` inner ones.
+    ``surfaces`` is not a key of the material file: an error about it names ``surfaces_key``
+    (the caller's setting: the job's key, a command-line option) and not the material file."""
     params = from_mapping(MaterialParameters, read_toml(path), source=str(path))
     if surfaces is not None:
-        try:
-            params = params.with_surfaces(surfaces)
-        except InputError as error:
-            raise error.located(str(path)) from None
+        params = params.with_surfaces(surfaces, key=surfaces_key)
     return params
 
 
