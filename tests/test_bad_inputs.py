@@ -117,3 +117,12 @@ def test_one_process_per_case(serial, tmp_path, case_id, ranks):
     check_message(case, done.returncode, ours)
     assert ours == serial[case.id]["stderr"]       # the same line, once
     assert sorted(tmp_path.rglob("*")) == before
+
+
+@pytest.mark.parametrize("name", ["hemisphere.toml", "double_dome.toml"])
+def test_drape_tools_accepts_the_shipped_tool_configs(name):
+    done = subprocess.run([sys.executable, "-m", "drape.cli", "tools",
+                           str(REPO / "configs" / "tools" / name), "--check"],
+                          capture_output=True, text=True, env=ENV, timeout=300)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    assert "tools, valid" in done.stdout
