@@ -12,10 +12,11 @@ needs the same number of ranks and the same partition (checked, node by node): o
 :class:`~drape.errors.InputError`. The file is written to a temporary name and renamed, so a
 kill while writing leaves the previous checkpoint intact.
 
-Resuming rewinds the folder to the checkpoint (:func:`rewind_outputs`): ``steps.csv`` is cut
-after the checkpoint's step, the XDMF time series loses the grids after its t, and its HDF5 file
-is renamed ``fields-<k>.h5`` (the XDMF text follows) so that the resumed run writes into a fresh
-``fields.h5`` and never meets a dataset of a step written after the checkpoint (a hard kill).
+Resuming rewinds the folder to the checkpoint (:func:`rewind_outputs`): ``steps.csv`` is
+rewritten from the checkpoint's rows, the XDMF time series (from its copy ``checkpoint.xdmf``,
+taken with the checkpoint) loses the grids after its t, and its HDF5 file is renamed
+``fields-<k>.h5`` (the XDMF follows) so that the resumed run writes into a fresh ``fields.h5``
+and never meets a dataset of a step written after the checkpoint (after a hard kill).
 """
 
 from __future__ import annotations
@@ -31,6 +32,9 @@ import numpy as np
 from drape.errors import InputError
 
 CHECKPOINT_FILE = "checkpoint.npz"
+#: a copy of fields.xdmf taken with each checkpoint (dolfinx rewrites the XDMF text in place
+#: after every step: a hard kill at that moment leaves it empty)
+XDMF_COPY = "checkpoint.xdmf"
 VERSION = 1
 #: config keys a resume may change (they do not change the numbers)
 FREE_KEYS = ("title", "material", "output.folder", "output.checkpoint_every")
@@ -111,6 +115,9 @@ class Checkpoints:
             arrays = {"meta": np.array(json.dumps(meta, default=_json_default))}
             for rank, part in enumerate(parts):
                 arrays.update({f"rank{rank}.{name}": value for name, value in part.items()})
+            xdmf = self.folder / "fields.xdmf"
+            if xdmf.is_file():
+                _replace_text(self.folder / XDMF_COPY, xdmf.read_text())
             buffer = io.BytesIO()
             np.savez(buffer, **arrays)
             temporary = self.path.with_name(f".{CHECKPOINT_FILE}.tmp")
@@ -209,18 +216,24 @@ class Checkpoints:
 
 # --- the results folder back to the checkpoint ---------------------------------------------
 
-def rewind_outputs(folder, step: int, t: float, comm) -> None:
-    """Collective (rank 0 works): steps.csv keeps the rows up to ``step``; fields.xdmf keeps
-    the grids up to ``t``, its fields.h5 becomes fields-<k>.h5 (the XDMF follows)."""
-    from drape.output import FIELDS_FILE, STEPS_FILE
+def rewind_outputs(folder, rows: list, t: float, comm) -> None:
+    """Collective (rank 0 works): steps.csv is rewritten with ``rows`` (the checkpoint's);
+    fields.xdmf (from the checkpoint's copy) keeps the grids up to ``t``, its fields.h5 becomes
+    fields-<k>.h5 (the XDMF follows)."""
+    import csv
+
+    from drape.output import FIELDS_FILE, STEPS_FILE, _text
     folder = Path(folder)
     if comm.rank == 0:
-        steps = folder / STEPS_FILE
-        if steps.is_file():
-            lines = steps.read_text().splitlines(keepends=True)
-            kept = lines[:1] + [line for line in lines[1:] if int(line.split(",", 1)[0]) <= step]
-            _replace_text(steps, "".join(kept))
-        xdmf = folder / FIELDS_FILE
+        text = io.StringIO(newline="")
+        writer = csv.writer(text)
+        writer.writerow(list(rows[0]))
+        for row in rows:
+            writer.writerow([_text(row.get(name, "")) for name in rows[0]])
+        _replace_text(folder / STEPS_FILE, text.getvalue())
+        xdmf, copy = folder / FIELDS_FILE, folder / XDMF_COPY
+        if copy.is_file():
+            _replace_text(xdmf, copy.read_text())
         if xdmf.is_file():
             trim_xdmf(xdmf, t)
     comm.barrier()
@@ -255,7 +268,10 @@ def trim_xdmf(path: Path, t: float) -> None:
 
 def _replace_text(path: Path, text: str) -> None:
     temporary = path.with_name(f".{path.name}.tmp")
-    temporary.write_text(text)
+    with open(temporary, "w", newline="") as stream:
+        stream.write(text)
+        stream.flush()
+        os.fsync(stream.fileno())
     os.replace(temporary, path)
 
 

@@ -140,7 +140,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
                               frame_rows, ledger)
     start = checkpoints.load() if resume else None   # (step, t, dt) to continue from
     if start is not None:
-        rewind_outputs(folder, start[0], start[1], comm)
+        rewind_outputs(folder, rows, start[1], comm)
         say(f"drape run: resuming from the checkpoint of step {start[0]} (t = {start[1]:.6g})")
     writer = ResultsWriter(folder, problem, xdmf=config.output.xdmf,
                            xdmf_every=config.output.xdmf_every, snapshot=config.output.snapshot,
@@ -251,7 +251,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 #: what a run writes in its folder (drape.folder.claim refuses to overwrite them silently)
 RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
 #: removed with them by --overwrite
-ALSO_REMOVED = ("fields.h5", "fields-*.h5", "frame_force.csv", "frame_force.png")
+ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "frame_force.csv",
+                "frame_force.png")
 
 
 def _quiet_jit_logging() -> None:
