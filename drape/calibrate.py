@@ -504,6 +504,10 @@ def plot_fit(path: Path, curve: Curve, result: Calibration) -> None:
 
 # --- command line ------------------------------------------------------------------------------
 
+#: what it writes in --output (not overwritten without --overwrite)
+RESULT_FILES = ("material.toml", "calibration.csv", "calibration.png")
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("data", metavar="CSV",
                         help="measured curve: columns gamma_t_deg and tau (N/mm), or "
@@ -531,9 +535,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--output", default="results/calibrate", metavar="DIR",
                         help="folder for material.toml, calibration.png and calibration.csv "
                              "(default results/calibrate)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the results (material.toml, calibration.csv/png) already in --output")
 
 
 def main(args) -> int:
+    from drape.folder import claim
     for key, value, lo, hi in (("--surfaces", args.surfaces, 0, 6), ("--degree", args.degree, 1, 12),
                                ("--fit-rows", args.fit_rows, 20, 10 ** 6)):
         if not lo <= value <= hi:
@@ -543,6 +550,7 @@ def main(args) -> int:
     rows = parse_rows(args.rows)
     curve = read_curve(args.data, args.frame_side)
     output = Path(args.output)
+    claim(output, RESULT_FILES, overwrite=args.overwrite)
     output.mkdir(parents=True, exist_ok=True)
 
     result = calibrate(curve, base, degree=args.degree, n_inner=args.surfaces, rows=rows,

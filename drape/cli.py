@@ -13,7 +13,7 @@ import os
 import sys
 
 from drape import __version__
-from drape.errors import EXIT_BAD_INPUT, EXIT_RUN_FAILED, InputError, RunFailed
+from drape.errors import EXIT_BAD_INPUT, EXIT_RUN_FAILED, InputError, Interrupted, RunFailed
 
 #: subcommand -> module providing ``add_arguments(parser)``, ``main(args)`` and ``HELP``.
 #: Modules are imported only for the subcommand that runs (dolfinx takes seconds to import).
@@ -60,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     except RunFailed as error:
         if os.environ.get("DRAPE_DEBUG"):
             raise
-        _report(f"drape {args.command}: run failed: {error}")
+        stopped = isinstance(error, Interrupted)
+        _report(f"drape {args.command}: {'stopped' if stopped else 'run failed'}: {error}")
         return EXIT_RUN_FAILED
 
 

@@ -4,6 +4,8 @@
   missing file, a mesh gmsh cannot build). Nothing has been computed yet. Exit code 2.
 * :class:`RunFailed` -- a run that had started could not go on (the solver did not converge
   even at the smallest step). Results up to the last converged step are kept. Exit code 1.
+* :class:`Interrupted` -- a RunFailed: the run was stopped by SIGTERM or SIGINT; results and
+  the checkpoint of the last converged step are written. Exit code 1.
 """
 
 from __future__ import annotations
@@ -12,7 +14,16 @@ EXIT_OK = 0
 EXIT_RUN_FAILED = 1
 EXIT_BAD_INPUT = 2
 
-_UNSET = object()
+
+
+class _Unset:
+    """'no value' (survives pickling: errors are broadcast under MPI)."""
+
+    def __reduce__(self):
+        return "_UNSET"
+
+
+_UNSET = _Unset()
 
 
 class InputError(Exception):
@@ -56,3 +67,7 @@ class InputError(Exception):
 
 class RunFailed(Exception):
     """A run that started and could not finish; what converged so far has been written."""
+
+
+class Interrupted(RunFailed):
+    """A run stopped by a signal (SIGTERM, SIGINT) after its last converged step was saved."""

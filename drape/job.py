@@ -159,6 +159,9 @@ class OutputConfig:
     snapshot: Literal["final", "every", "none"] = setting(
         "final", "partition-independent result.npz (fields gathered on rank 0, sorted by "
         "coordinates): after the last step, after every step, or never")
+    checkpoint_every: int = setting(
+        10, "write checkpoint.npz (for drape run --resume) every N converged steps, and at the "
+        "last converged step when a run stops (signal or failure); 0: never", non_negative)
 
 
 @dataclasses.dataclass(frozen=True)

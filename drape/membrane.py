@@ -65,6 +65,16 @@ class PointContribution:
     def commit(self) -> None:
         pass
 
+    def state(self) -> dict:
+        """The committed history (e.g. friction) as named numpy arrays, for a checkpoint;
+        none by default. Arrays of this rank's points (the checkpoint is per rank)."""
+        return {}
+
+    def load_state(self, state: dict) -> None:
+        """Take back what :meth:`state` returned (resume from a checkpoint)."""
+        if state:
+            raise NotImplementedError(f"{type(self).__name__} saved a state but cannot load it")
+
 
 class MembraneProblem:
     """Spaces, state, forms and the SNES callbacks of the membrane on a :class:`BlankMesh`."""
@@ -184,6 +194,10 @@ class MembraneProblem:
         self.bcs = []
         self.response = None
         self._evaluated_at = None
+        #: where a NaN/Inf appeared since the last :meth:`clear_nonfinite` ("law", "residual",
+        #: a contribution's name), on this rank; the solver gathers it after each solve
+        self.nonfinite: set[str] = set()
+        self._finite = True
 
     # --- the law at the quadrature points ------------------------------------------------------
     def committed_state(self):
@@ -205,6 +219,10 @@ class MembraneProblem:
         self.tau.x.array[self.qdofs] = response.tau
         self.dtau.x.array[self.qdofs] = response.dtau_dC12
         self.response = response
+        self._finite = _all_finite(response.tau, response.dtau_dC12, response.trial.gamma_p,
+                                   response.trial.centres, response.trial.gamma_max_deg)
+        if not self._finite:
+            self.nonfinite.add("law")
         self.timings["quadrature_values"] += middle - start + time.perf_counter() - end
         self.timings["law"] += end - middle
         self.counts["law"] += 1
@@ -213,6 +231,9 @@ class MembraneProblem:
             values = self._extra_state.eval(self.cells).reshape(-1, 6)
             for contribution, force, stiffness, dofs_f, dofs_k in self._contribution_data:
                 f, K = contribution.evaluate(values[:, :3], values[:, 3:])
+                if not _all_finite(f, K):
+                    self._finite = False
+                    self.nonfinite.add(contribution.name)
                 _write_blocked(force, dofs_f, np.asarray(f).reshape(-1, 3))
                 _write_blocked(stiffness, dofs_k, np.asarray(K).reshape(-1, 9))
             self.timings["contributions"] += time.perf_counter() - start
@@ -242,6 +263,12 @@ class MembraneProblem:
         fpetsc.apply_lifting(b, [self.jacobian_form], bcs=[self.bcs], x0=[x], scale=-1.0)
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         fpetsc.set_bc(b, self.bcs, x, -1.0)
+        if not self._finite:
+            # a NaN/Inf in the law's (or a contribution's) output on this rank: poison the
+            # residual, so that its norm -- and SNES's verdict -- is NaN on every rank
+            b.array[:] = np.nan
+        elif not np.isfinite(b.array).all():
+            self.nonfinite.add("residual")
         self.timings["residual_assembly"] += time.perf_counter() - start
         self.counts["residual"] += 1
 
@@ -308,6 +335,10 @@ class MembraneProblem:
         """Deformed warp and weft directions F G1, F G2 at the law's points, (P, 3) each."""
         values = self._directions.eval(self.cells).reshape(-1, 6)
         return values[:, :3], values[:, 3:]
+
+
+def _all_finite(*arrays) -> bool:
+    return all(np.isfinite(np.asarray(a, dtype=float)).all() for a in arrays)
 
 
 def _write_blocked(function, dofs, values) -> None:

@@ -25,7 +25,9 @@ SNAPSHOT_FILE = "result.npz"
 
 class ResultsWriter:
     def __init__(self, folder: Path, problem, *, xdmf: bool = True, xdmf_every: int = 1,
-                 snapshot: str = "final"):
+                 snapshot: str = "final", append: bool = False):
+        """``append``: continue the files of a resumed run (rewound to its checkpoint by
+        :func:`drape.checkpoint.rewind_outputs`) instead of starting them."""
         from dolfinx import fem, io
 
         self.folder = Path(folder)
@@ -37,6 +39,7 @@ class ResultsWriter:
         self.xdmf, self.xdmf_every, self.snapshot = xdmf, xdmf_every, snapshot
         self._csv = None
         self._columns = None
+        self.append = append
         msh = problem.mesh
         W0 = fem.FunctionSpace(msh, ("DG", 0))
         W3 = fem.VectorFunctionSpace(msh, ("DG", 0), dim=3)
@@ -48,7 +51,7 @@ class ResultsWriter:
         n = problem.n_cells
         self._dg0 = W0.dofmap.list.array[:n]
         self._dg3 = W3.dofmap.list.array[:n]
-        if self.xdmf:
+        if self.xdmf and not append:
             with io.XDMFFile(self.comm, str(self.folder / FIELDS_FILE), "w") as stream:
                 stream.write_mesh(msh)
 
@@ -66,10 +69,17 @@ class ResultsWriter:
         if self.comm.rank != 0:
             return
         if self._csv is None:
-            self._columns = list(row)
-            self._stream = (self.folder / STEPS_FILE).open("w", newline="")
-            self._csv = csv.writer(self._stream)
-            self._csv.writerow(self._columns)
+            path = self.folder / STEPS_FILE
+            if self.append and path.is_file():
+                with path.open(newline="") as stream:
+                    self._columns = next(csv.reader(stream))
+                self._stream = path.open("a", newline="")
+                self._csv = csv.writer(self._stream)
+            else:
+                self._columns = list(row)
+                self._stream = path.open("w", newline="")
+                self._csv = csv.writer(self._stream)
+                self._csv.writerow(self._columns)
         self._csv.writerow([_text(row.get(name, "")) for name in self._columns])
         self._stream.flush()
 

@@ -163,6 +163,10 @@ def plot(path: Path, curves: list[tuple[str, dict[str, np.ndarray]]], title: str
 
 # --- command line ------------------------------------------------------------------------------
 
+#: what it writes in --output (not overwritten without --overwrite)
+RESULT_FILES = ("picture_frame.csv", "picture_frame.png", "picture_frame_one_surface.csv")
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("--material", default=None, metavar="FILE",
                         help="material TOML file (default: the paper's three-surface model, "
@@ -183,9 +187,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--output", default="results/picture-frame", metavar="DIR",
                         help="folder for picture_frame.csv and picture_frame.png "
                              "(default results/picture-frame)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the results (picture_frame.csv/png) already in --output")
 
 
 def main(args) -> int:
+    from drape.folder import claim
     if args.material is None:
         params = MaterialParameters()
         if args.surfaces is not None:
@@ -197,6 +204,7 @@ def main(args) -> int:
     else:
         history = cyclic_history(parse_cycles(args.cycles or DEFAULT_CYCLES), args.increment)
     output = Path(args.output)
+    claim(output, RESULT_FILES, overwrite=args.overwrite)
     output.mkdir(parents=True, exist_ok=True)
 
     columns = drive(params, history)

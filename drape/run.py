@@ -6,7 +6,10 @@ and solved in adaptive load steps with the nested-surface law at every quadratur
 
 Writes results/<config name>/ (or --output): fields.xdmf (+ .h5), steps.csv, result.npz and,
 for a picture-frame job, frame_force.csv and frame_force.png. Every converged step is written
-as it converges; a run that fails keeps what converged (exit code 1). See docs/fe-solver.md.
+as it converges; a run that fails keeps what converged (exit code 1). A checkpoint
+(checkpoint.npz) every output.checkpoint_every steps and when a run stops (SIGTERM, Ctrl-C, a
+failure) lets `drape run CONFIG --resume` continue it. A folder that holds results is not
+overwritten without --overwrite. See docs/fe-solver.md.
 """
 
 from __future__ import annotations
@@ -33,11 +36,18 @@ def add_arguments(parser) -> None:
                         help="override a config value (TOML syntax), e.g. mesh.size=2.5 or "
                              "output.xdmf=false; repeatable")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    again = parser.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true",
+                       help="continue from the checkpoint in the results folder (same config, "
+                            "--set values and number of ranks)")
+    again.add_argument("--overwrite", action="store_true",
+                       help="start over in a results folder that already holds results")
 
 
 def main(args) -> int:
     from mpi4py import MPI
 
+    from drape.errors import Interrupted
     from drape.job import load_job
     from drape.solver import parse_option
 
@@ -45,11 +55,29 @@ def main(args) -> int:
     job = load_job(args.config, overrides=args.set)
     comm = MPI.COMM_WORLD
     log = None if args.quiet else (print if comm.rank == 0 else None)
-    summary = run_job(job, comm, output=args.output, petsc_options=options, log=log)
+    try:
+        summary = run_job(job, comm, output=args.output, petsc_options=options, log=log,
+                          resume=args.resume, overwrite=args.overwrite)
+    except Interrupted as stopped:
+        raise Interrupted(f"{stopped}; resume with: {resume_command(args, comm.size)}") from None
     if comm.rank == 0 and not args.quiet:
         print(f"drape run: {summary.steps} steps to t = {summary.t:g} in {summary.seconds:.1f} s; "
               f"results in {summary.folder}")
     return 0
+
+
+def resume_command(args, ranks: int) -> str:
+    """The command line that resumes the run of ``args``."""
+    import shlex
+    words = ["drape", "run", args.config, "--resume"]
+    if args.output:
+        words += ["--output", args.output]
+    for item in args.set:
+        words += ["--set", item]
+    for item in args.petsc_option:
+        words += ["--petsc-option", item]
+    text = shlex.join(words)
+    return f"mpirun -n {ranks} {text}" if ranks > 1 else text
 
 
 @dataclasses.dataclass
@@ -63,17 +91,22 @@ class RunSummary:
 
 
 def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, log=None,
-            jit_params=None) -> RunSummary:
+            jit_params=None, resume=False, overwrite=False) -> RunSummary:
     """Run a loaded :class:`~drape.job.Job` on ``comm`` (default COMM_WORLD).
 
     on_step(step_row, problem) is called on every rank after each converged step is written.
-    Raises RunFailed (results so far written) when a step does not converge.
+    Raises RunFailed (results so far written) when a step does not converge, Interrupted on
+    SIGTERM/SIGINT (after the checkpoint), InputError if the results folder holds results and
+    neither ``overwrite`` (start over) nor ``resume`` (continue from its checkpoint) is given.
     """
     from mpi4py import MPI
 
     from drape import frame_force
+    from drape.checkpoint import Checkpoints, rewind_outputs
     from drape.constraints import PrescribedMotion
-    from drape.errors import InputError, RunFailed
+    from drape.errors import InputError, Interrupted, RunFailed
+    from drape.folder import claim
+    from drape.interrupt import StopRequest
     from drape.law.nested_surface import NestedSurfaceLaw
     from drape.loading import Loading
     from drape.membrane import MembraneProblem
@@ -86,6 +119,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     config = job.config
     started = time.perf_counter()
     say = log or (lambda *_: None)
+    folder = job.results_folder(output)
+    claim(folder, RESULT_FILES, comm=comm, overwrite=overwrite, resume=resume,
+          also_remove=ALSO_REMOVED, can_resume=True)
 
     try:
         blank_mesh = create_blank_mesh(comm, config.blank, config.mesh)
@@ -101,9 +137,17 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     area = comm.allreduce(problem.cell_areas.sum())
     force_scale = job.params.mu * max(job.params.K1, job.params.K2) * math.sqrt(area)
     solver = NewtonSolver(problem, config.solver, force_scale, petsc_options)
-    folder = job.results_folder(output)
+    rows, frame_rows = [], []
+    ledger = {"external": 0.0, "regularisation": 0.0, "f": None, "g": None}
+    checkpoints = Checkpoints(folder, problem, job, config.output.checkpoint_every, rows,
+                              frame_rows, ledger)
+    start = checkpoints.load() if resume else None   # (step, t, dt) to continue from
+    if start is not None:
+        rewind_outputs(folder, rows, start[1], comm)
+        say(f"drape run: resuming from the checkpoint of step {start[0]} (t = {start[1]:.6g})")
     writer = ResultsWriter(folder, problem, xdmf=config.output.xdmf,
-                           xdmf_every=config.output.xdmf_every, snapshot=config.output.snapshot)
+                           xdmf_every=config.output.xdmf_every, snapshot=config.output.snapshot,
+                           append=start is not None)
     frame = config.picture_frame
     side = config.blank.length
     yarn_modulus = (job.params.mu * job.params.K1, job.params.mu * job.params.K2)
@@ -112,8 +156,6 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             "with stiff yarns such meshes lock in tension (too stiff, yarns stretched: watch "
             "max_yarn_strain in steps.csv). mesh.pattern = \"aligned\" avoids it; see "
             "docs/fe-solver.md")
-    rows, frame_rows = [], []
-    ledger = {"external": 0.0, "regularisation": 0.0, "f": None, "g": None}
 
     def record(step, t, iterations=0, cutbacks=0, dt=0.0, residual=0.0, seconds=0.0):
         force = problem.internal_force()
@@ -155,6 +197,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         return row
 
     def attempt(t):
+        signal_name = stop.requested(comm)
+        if signal_name:
+            raise Interrupted(signal_name)
         motion.set_load(t)
         return solver.solve()
 
@@ -164,6 +209,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         row = record(step.number, step.t, step.iterations, step.cutbacks, step.dt,
                      step.residual, step.seconds)
         writer.write_step(row, step.t, last=step.t >= 1.0 - 1e-12)
+        checkpoints.step_done(step)
         extras = "".join(f"  {name}={row[name]:.4g}" for name in loading.histories)
         say(f"step {step.number:4d}  t={step.t:.5f}{extras}  newton={step.iterations}"
             f"{f'  cutbacks={step.cutbacks}' if step.cutbacks else ''}"
@@ -171,19 +217,30 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         if on_step is not None:
             on_step(row, problem)
 
+    stop = StopRequest().install()
     try:
-        motion.set_load(0.0)
-        problem.evaluate()
-        writer.write_step(record(0, 0.0), 0.0)
-        run_load_steps(config.steps, loading.breakpoints(), attempt, accept, problem.restore, log=say)
+        if start is None:
+            motion.set_load(0.0)
+            problem.evaluate()
+            writer.write_step(record(0, 0.0), 0.0)
+            start = (0, 0.0, None)
+        run_load_steps(config.steps, loading.breakpoints(), attempt, accept, problem.restore,
+                       step0=start[0], t0=start[1], dt0=start[2], log=say)
     except RunFailed as failure:
         problem.restore()
         problem.evaluate()
         if config.output.snapshot != "none":
             writer.write_snapshot(rows[-1]["t"])
-        raise RunFailed(f"{failure}; results up to t = {rows[-1]['t']:.6g} "
-                        f"(step {rows[-1]['step']}) are in {folder}") from None
+        saved = checkpoints.save_last()
+        last = f"t = {rows[-1]['t']:.6g} (step {rows[-1]['step']})"
+        if isinstance(failure, Interrupted):
+            raise Interrupted(f"{failure} received; stopped after step {rows[-1]['step']} at "
+                              f"t = {rows[-1]['t']:.6g}: results{' and checkpoint' if saved else ''}"
+                              f" up to it are in {folder}") from None
+        raise RunFailed(f"{failure}; results up to {last} are in {folder}"
+                        f"{' (with a checkpoint)' if saved else ''}") from None
     finally:
+        stop.uninstall()
         writer.close()
         solver.close()
         if frame is not None and comm.rank == 0 and len(frame_rows) > 1:
@@ -192,6 +249,13 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     timings.update({f"count_{k}": v for k, v in problem.counts.items()})
     return RunSummary(rows[-1]["step"], rows[-1]["t"], time.perf_counter() - started, folder,
                       rows, timings)
+
+
+#: what a run writes in its folder (drape.folder.claim refuses to overwrite them silently)
+RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
+#: removed with them by --overwrite
+ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "frame_force.csv",
+                "frame_force.png")
 
 
 def _quiet_jit_logging() -> None:

@@ -178,6 +178,7 @@ class NewtonSolver:
         start = time.perf_counter()
         u = self.problem.u
         u.vector.copy(self.x)
+        self.problem.nonfinite.clear()
         try:
             self.snes.solve(None, self.x)
             reason = self.snes.getConvergedReason()
@@ -189,6 +190,11 @@ class NewtonSolver:
         u.x.scatter_forward()
         residual = self.snes.getFunctionNorm()
         name = failure or self._reasons.get(reason, str(reason))
+        # a NaN/Inf in the law's output or the residual on any rank fails the attempt
+        nonfinite = set().union(*self.problem.comm.allgather(self.problem.nonfinite))
+        if nonfinite:
+            reason = min(reason, -1)
+            name = nonfinite_reason(nonfinite)
         return SolveResult(reason > 0, self.snes.getIterationNumber(), name, float(residual),
                            time.perf_counter() - start)
 
@@ -203,6 +209,17 @@ class NewtonSolver:
         self.x.destroy()
 
 
+def nonfinite_reason(where: set[str]) -> str:
+    """The reason of a failed attempt in which a NaN/Inf appeared (where: law, residual, ...)."""
+    if "law" in where:
+        place = "the law's output (tau, its tangent or the state)"
+    elif where == {"residual"}:
+        place = "the residual"
+    else:
+        place = "the point contribution(s) " + ", ".join(sorted(where - {"residual"}))
+    return f"a NaN/Inf appeared in {place}"
+
+
 # --- load stepping -------------------------------------------------------------------------------
 
 @dataclasses.dataclass
@@ -215,6 +232,8 @@ class Step:
     cutbacks: int
     residual: float
     seconds: float
+    #: the step size the loop proposes next (after growth): what a resume starts with
+    next_dt: float = 0.0
 
 
 def next_load(t: float, dt: float, breakpoints: np.ndarray) -> float:
@@ -226,27 +245,29 @@ def next_load(t: float, dt: float, breakpoints: np.ndarray) -> float:
 
 
 def run_load_steps(config, breakpoints, attempt, accept, reject, *, t0: float = 0.0,
-                   step0: int = 0, log=None) -> Step | None:
+                   step0: int = 0, dt0: float | None = None, log=None) -> Step | None:
     """Adaptive load stepping from t0 to 1 (``config``: a :class:`~drape.job.StepsConfig`).
 
     attempt(t) -> SolveResult solves for load factor t from the committed state; accept(Step)
     commits and writes it; reject() restores the committed state. A failed attempt is retried
     with the step times ``cutback``; an easy one (at most ``easy_iterations``) lets the next
-    grow by ``growth`` up to ``maximum``. Returns the last step.
+    grow by ``growth`` up to ``maximum``. ``t0``, ``step0``, ``dt0`` continue a run (resume)
+    from step ``step0`` at ``t0`` with the step size ``dt0`` (default ``initial``). Returns the
+    last step.
     """
-    t, dt, number, last = t0, config.initial, step0, None
+    t, dt, number, last = t0, dt0 or config.initial, step0, None
     cutbacks = 0
     while t < 1.0 - 1e-12:
         t_next = next_load(t, dt, breakpoints)
         result = attempt(t_next)
         if result.converged:
             number += 1
-            last = Step(number, t_next, t_next - t, result.iterations, cutbacks, result.residual,
-                        result.seconds)
-            accept(last)
-            cutbacks = 0
             if result.iterations <= config.easy_iterations:
                 dt = min(config.maximum, max(dt, t_next - t) * config.growth)
+            last = Step(number, t_next, t_next - t, result.iterations, cutbacks, result.residual,
+                        result.seconds, next_dt=dt)
+            accept(last)
+            cutbacks = 0
             t = t_next
             continue
         reject()

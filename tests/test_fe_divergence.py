@@ -100,3 +100,7 @@ def test_non_convergence_fails_clearly_and_keeps_the_results(comm, shared_tmp):
         # the committed state, not the failed attempt's: the clamp where the last step left it
         right = np.isclose(snapshot["node_xy"][:, 0], 100.0)
         assert np.allclose(snapshot["u"][right, 0], float(rows[-1]["d"]), rtol=1e-14, atol=0)
+        # the checkpoint of the last converged step is written too
+        assert message.endswith("(with a checkpoint)")
+        with np.load(shared_tmp / "jump" / "checkpoint.npz") as data:
+            assert f'"step": {rows[-1]["step"]},' in str(data["meta"])

@@ -1,0 +1,276 @@
+"""Reliability of `drape run`: a run stopped by SIGTERM writes a checkpoint and files that hold
+every converged step; `--resume` continues it to the same numbers as a run never stopped
+(result.npz: u and tau within 1e-10, serially and on 2 ranks); a changed config or another
+number of ranks is refused (exit 2); results are never overwritten silently (run,
+picture-frame, calibrate); a NaN in the law's output or the residual fails the attempt, never
+a result."""
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+from conftest import CONFIGS, REPO
+
+#: the bias-extension job, coarse (76 cells), 27 steps
+SHORT = ["--set", "mesh.size=10", "--set", "steps.maximum=0.04", "--set",
+         "output.checkpoint_every=5", "--quiet"]
+ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+           OMPI_MCA_rmaps_base_oversubscribe="1")
+
+
+def command(*args, ranks=1):
+    line = [sys.executable, "-m", "drape.cli", *map(str, args)]
+    return ["mpirun", "-n", str(ranks), *line] if ranks > 1 else line
+
+
+def drape(*args, ranks=1):
+    return subprocess.run(command(*args, ranks=ranks), capture_output=True, text=True, cwd=REPO,
+                          env=ENV, timeout=600)
+
+
+def run_and_terminate(folder, ranks=1):
+    """Start the short job, SIGTERM it (mpirun forwards it to every rank) as soon as its first
+    checkpoint exists; returns the finished process's return code and stderr."""
+    process = subprocess.Popen(command("run", CONFIGS / "bias_extension.toml", "--output", folder,
+                                       *SHORT, ranks=ranks),
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+                               env=ENV)
+    while not (folder / "checkpoint.npz").exists() and process.poll() is None:
+        time.sleep(0.01)
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=300)
+    return process.returncode, err
+
+
+def read_steps(folder):
+    with open(folder / "steps.csv") as stream:
+        return list(csv.DictReader(stream))
+
+
+def xdmf_times_and_datasets(folder):
+    """Time values of the displacement series, and (h5 file, dataset path) of every DataItem."""
+    root = ET.parse(folder / "fields.xdmf").getroot()
+    times = {}
+    for collection in root.iter("Grid"):
+        if collection.get("GridType") == "Collection":
+            times[collection.get("Name")] = [float(g.find("Time").get("Value"))
+                                             for g in collection.findall("Grid")]
+    items = [item.text.strip().split(":", 1) for item in root.iter("DataItem")]
+    return times, items
+
+
+def check_datasets_exist(folder, items):
+    import h5py
+    for name, path in items:
+        with h5py.File(folder / name, "r") as h5:
+            assert path in h5, (name, path)
+
+
+def check_stopped_folder(folder, rc, err):
+    """The state after SIGTERM: exit 1 and one line naming the step, t and the resume command;
+    steps.csv = converged steps; fields.xdmf parses and has every step's datasets."""
+    assert rc == 1, err
+    lines = [line for line in err.splitlines() if line.startswith("drape run")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    line = lines[0]
+    assert "drape run: stopped: SIGTERM received; stopped after step" in line
+    assert "--resume" in line and f"--output {folder}" in line
+    step = int(line.split("stopped after step ")[1].split()[0])
+    rows = read_steps(folder)
+    assert [int(r["step"]) for r in rows] == list(range(step + 1))
+    assert f"at t = {float(rows[-1]['t']):.6g}:" in line
+    times, items = xdmf_times_and_datasets(folder)
+    assert times["displacement"] == [float(r["t"]) for r in rows]
+    assert all(len(series) == step + 1 for series in times.values()) and len(times) == 9
+    check_datasets_exist(folder, items)
+    with np.load(folder / "checkpoint.npz") as data:   # the last converged step, not the 5th
+        assert '"step": %d,' % step in str(data["meta"])
+    assert step >= 5
+    return step
+
+
+def check_same_as_uninterrupted(resumed, uninterrupted):
+    a, b = np.load(resumed / "result.npz"), np.load(uninterrupted / "result.npz")
+    assert np.abs(a["u"]).max() > 10.0 and np.abs(a["tau"]).max() > 1.0
+    assert np.abs(a["u"] - b["u"]).max() <= 1e-10
+    assert np.abs(a["tau"] - b["tau"]).max() <= 1e-10
+    rows_a, rows_b = read_steps(resumed), read_steps(uninterrupted)
+    assert len(rows_a) == len(rows_b) > 20
+    for ra, rb in zip(rows_a, rows_b):
+        for key in ("step", "t", "dt", "newton_iterations", "cutbacks"):
+            assert ra[key] == rb[key]
+        for key in ("right_Fx", "external_work", "tau_mean"):
+            assert abs(float(ra[key]) - float(rb[key])) <= 1e-10 * max(1.0, abs(float(rb[key])))
+    times, items = xdmf_times_and_datasets(resumed)
+    assert times["displacement"] == [float(r["t"]) for r in rows_b]   # each step exactly once
+    assert all(series == times["displacement"] for series in times.values())
+    check_datasets_exist(resumed, items)
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_sigterm_then_resume_gives_the_uninterrupted_result(tmp_path, ranks):
+    stopped, uninterrupted = tmp_path / "stopped", tmp_path / "uninterrupted"
+    rc, err = run_and_terminate(stopped, ranks)
+    step = check_stopped_folder(stopped, rc, err)
+    print(f"\n{ranks} rank(s): stopped after step {step}")
+
+    # a changed config, another number of ranks: refused, naming what differs
+    changed = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT,
+                    "--set", "regularisation.out_of_plane_damping=0.01", "--resume", ranks=ranks)
+    assert changed.returncode == 2, changed.stderr
+    assert "regularisation.out_of_plane_damping (0.001 -> 0.01)" in changed.stderr
+    other = 2 if ranks == 1 else 1
+    wrong = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT, "--resume",
+                  ranks=other)
+    assert wrong.returncode == 2 and f"written by {ranks} rank(s), this run has {other}" in wrong.stderr
+
+    done = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT, "--resume",
+                 ranks=ranks)
+    assert done.returncode == 0, done.stderr
+    full = drape("run", CONFIGS / "bias_extension.toml", "--output", uninterrupted, *SHORT,
+                 ranks=ranks)
+    assert full.returncode == 0, full.stderr
+    check_same_as_uninterrupted(stopped, uninterrupted)
+
+
+@pytest.mark.serial
+def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path):
+    """SIGKILL leaves steps after the last periodic checkpoint in steps.csv and fields.xdmf/h5:
+    the resume drops them and writes them again, once."""
+    folder, uninterrupted = tmp_path / "killed", tmp_path / "uninterrupted"
+    process = subprocess.Popen(command("run", CONFIGS / "bias_extension.toml", "--output", folder,
+                                       *SHORT), cwd=REPO, env=ENV, stderr=subprocess.DEVNULL)
+    while not (folder / "checkpoint.npz").exists() and process.poll() is None:
+        time.sleep(0.01)
+    while len(read_steps(folder)) < 9 and process.poll() is None:   # past the checkpoint
+        time.sleep(0.01)
+    process.kill()
+    process.wait()
+    assert len(read_steps(folder)) > 6
+    done = drape("run", CONFIGS / "bias_extension.toml", "--output", folder, *SHORT, "--resume")
+    assert done.returncode == 0, done.stderr
+    full = drape("run", CONFIGS / "bias_extension.toml", "--output", uninterrupted, *SHORT)
+    assert full.returncode == 0, full.stderr
+    check_same_as_uninterrupted(folder, uninterrupted)
+
+
+@pytest.mark.serial
+def test_results_are_not_overwritten_silently(tmp_path):
+    folder = tmp_path / "run"
+    args = ["run", CONFIGS / "bias_extension.toml", "--output", folder, *SHORT,
+            "--set", "steps.maximum=0.25"]
+    assert drape(*args).returncode == 0
+    for ranks in (1, 2):
+        again = drape(*args, ranks=ranks)
+        assert again.returncode == 2, again.stderr
+        lines = [line for line in again.stderr.splitlines() if line.startswith("drape")]
+        assert len(lines) == 1 and "Traceback" not in again.stderr
+        assert "already holds results (checkpoint.npz, fields.xdmf, result.npz, steps.csv)" in lines[0]
+        assert "--overwrite" in lines[0] and "--resume" in lines[0]
+    over = drape(*args, "--overwrite")
+    assert over.returncode == 0, over.stderr
+    assert len(read_steps(folder)) == 15
+    # nothing to resume in an empty folder
+    empty = drape("run", CONFIGS / "bias_extension.toml", "--output", tmp_path / "empty", "--resume")
+    assert empty.returncode == 2 and "nothing to resume" in empty.stderr
+
+    pf = ["picture-frame", "--cycles", "5", "--increment", "1", "--output", tmp_path / "pf"]
+    assert drape(*pf).returncode == 0
+    again = drape(*pf)
+    assert again.returncode == 2 and "picture_frame.csv" in again.stderr
+    assert "--overwrite" in again.stderr
+    assert drape(*pf, "--overwrite").returncode == 0
+
+
+def test_calibrate_refuses_an_occupied_folder(tmp_path, capsys):
+    from drape.cli import main
+    out = tmp_path / "cal"
+    out.mkdir()
+    (out / "material.toml").write_text("# an earlier fit\n")
+    data = tmp_path / "data.csv"
+    cycle = [*range(0, 20), *range(20, -20, -1), *range(-20, 1)]
+    data.write_text("gamma_t_deg,tau\n" + "".join(f"{g},{0.01 * g}\n" for g in cycle))
+    assert main(["calibrate", str(data), "--surfaces", "0", "--output", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "already holds results (material.toml)" in err and "--overwrite" in err
+    assert (out / "material.toml").read_text() == "# an earlier fit\n"
+
+
+# --- NaN / Inf ---------------------------------------------------------------------------------
+
+NAN_JOB = ["output.xdmf=false", "mesh.size=10", "steps.maximum=0.1", "steps.minimum=0.01"]
+
+
+def run_with_nan(comm, folder, monkeypatch, *, law_calls=None, residual_calls=None):
+    """Run the short job with NaN in tau (law) or in the residual vector on the given calls
+    (counted on rank 0 only: the other rank sees nothing)."""
+    from dolfinx.fem import petsc as fpetsc
+
+    from drape.job import load_job
+    from drape.law.nested_surface import NestedSurfaceLaw
+    from drape.run import run_job
+
+    count = {"law": 0, "residual": 0}
+    law_calls = law_calls or (lambda n: False)
+    residual_calls = residual_calls or (lambda n: False)
+    update, assemble = NestedSurfaceLaw.update, fpetsc.assemble_vector
+
+    def poisoned_update(self, *args):
+        response = update(self, *args)
+        count["law"] += 1
+        if comm.rank == 0 and law_calls(count["law"]) and response.tau.size:
+            response.tau[0] = np.nan
+        return response
+
+    def poisoned_assemble(*args, **kwargs):
+        result = assemble(*args, **kwargs)
+        if len(args) == 2:    # the residual (into b), not the internal force
+            count["residual"] += 1
+            if comm.rank == 0 and residual_calls(count["residual"]):
+                args[0].array[:] = np.inf
+        return result
+
+    monkeypatch.setattr(NestedSurfaceLaw, "update", poisoned_update)
+    monkeypatch.setattr(fpetsc, "assemble_vector", poisoned_assemble)
+    return run_job(load_job(CONFIGS / "bias_extension.toml", overrides=NAN_JOB), comm,
+                   output=folder)
+
+
+@pytest.mark.parametrize("where", ["law", "residual"])
+def test_a_nan_once_is_a_cutback_not_a_result(comm, shared_tmp, monkeypatch, where):
+    summary = run_with_nan(comm, shared_tmp / where, monkeypatch,
+                           **{f"{where}_calls": lambda n: n == 40})
+    rows = summary.rows
+    assert rows[-1]["t"] == 1.0
+    assert sum(r["cutbacks"] for r in rows) == 1
+    assert all(np.isfinite(float(v)) for r in rows for v in r.values())
+    if comm.rank == 0:
+        result = np.load(shared_tmp / where / "result.npz")
+        assert np.isfinite(result["u"]).all() and np.isfinite(result["tau"]).all()
+
+
+@pytest.mark.parametrize("where, text", [("law", "a NaN/Inf appeared in the law's output"),
+                                         ("residual", "a NaN/Inf appeared in the residual")])
+def test_a_persistent_nan_fails_the_run_naming_it(comm, shared_tmp, monkeypatch, where, text):
+    from drape.errors import RunFailed
+    folder = shared_tmp / f"always_{where}"
+    with pytest.raises(RunFailed) as caught:
+        run_with_nan(comm, folder, monkeypatch, **{f"{where}_calls": lambda n: n > 40})
+    message = str(caught.value)
+    assert text in message and "Newton did not converge at load factor t = " in message
+    assert "steps.minimum = 0.01" in message and "(with a checkpoint)" in message
+    if comm.rank == 0:
+        rows = read_steps(folder)
+        step = int(rows[-1]["step"])
+        assert message.startswith(f"step {step + 1}: ") and f"(step {step})" in message
+        assert all(np.isfinite(float(v)) for r in rows for v in r.values())
+        with np.load(folder / "checkpoint.npz") as data:
+            assert '"step": %d,' % step in str(data["meta"])
