@@ -21,6 +21,7 @@ SUBCOMMANDS = {
     "picture-frame": "drape.picture_frame",
     "run": "drape.run",
     "calibrate": "drape.calibrate",
+    "view": "drape.view",
 }
 
 DESCRIPTION = """\
