@@ -107,4 +107,4 @@ def test_reversal_points_and_cycles_of_the_plots():
     assert turns.tolist() == [2, 4, 8, 20]
     assert cycle_starts(history).tolist() == [0, 4, 12]
     assert reversal_indices([0.0, 1.0, 1.0, 2.0]).size == 0          # no turn, plateaus skipped
-    assert reversal_indices([0.0, 1.0, 1.0, 0.5]).tolist() == [1]
+    assert reversal_indices([0.0, 1.0, 1.0, 0.5]).tolist() == [2]    # the last point of the peak
