@@ -8,7 +8,7 @@ surfaces (.vtu) open too, and `drape view --screenshot` renders a non-trivial sh
 off screen that marks the locking angle.
 
 ParaView is installed here if pvpython is missing (apt-get, as root; skipped otherwise): it is
-~550 MB, so scripts/install.sh does not install it (docs/viewing.md).
+138 packages and ~800 MB on bookworm, so scripts/install.sh does not install it (docs/viewing.md).
 """
 
 import csv
