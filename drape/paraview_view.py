@@ -88,9 +88,11 @@ def build(results, locking_angle, time=None, offscreen=False):
     values = reader.TimestepValues
     times = [float(v) for v in values] if len(values) else [0.0]
     t = times[-1] if time is None else builtins.min(times, key=lambda value: builtins.abs(value - time))
-    scene = pv.GetAnimationScene()
-    scene.UpdateAnimationUsingDataTimeSteps()
-    scene.AnimationTime = t
+    if offscreen:
+        # (in the GUI, under Xvfb at least, these block ParaView 5.11's --script)
+        scene = pv.GetAnimationScene()
+        scene.UpdateAnimationUsingDataTimeSteps()
+        scene.AnimationTime = t
 
     fields = merged_fields(reader)
     warped = pv.WarpByVector(registrationName="warped by displacement", Input=fields)
