@@ -22,22 +22,36 @@ SUBCOMMANDS = {
     "run": "drape.run",
     "calibrate": "drape.calibrate",
     "tools": "drape.tools_cli",
+    "view": "drape.view",
 }
 
 DESCRIPTION = """\
 drape simulates the forming (draping) of woven composite fabrics with the nested-surface
-elasto-plastic shear law, on FEniCSx. Subcommands:
+elasto-plastic shear law, on FEniCSx. Units: mm, N, MPa; angles in degrees.
+`drape COMMAND --help` explains each command's options.
+"""
+
+EPILOG = """\
+exit codes:
+  0  success
+  2  bad input (a config key, value, file or option is wrong; nothing computed)
+  1  a run that failed after it started (results up to the last converged step kept)
+
+Errors are one line on stderr without a traceback (DRAPE_DEBUG=1 shows one).
+Documentation: README.md and docs/ (docs/fe-solver.md, docs/viewing.md, ...).
 """
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="drape", description=DESCRIPTION,
-                             formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="drape", description=DESCRIPTION, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"drape {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, module_name in SUBCOMMANDS.items():
         module = importlib.import_module(module_name)
         command = sub.add_parser(name, help=module.HELP, description=module.__doc__,
+                                 epilog="exit codes: 0 success, 2 bad input, 1 a run that "
+                                        "failed after it started (see drape --help)",
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(command)
         command.set_defaults(_module=module)

@@ -62,13 +62,24 @@ def write(folder: Path, side: float, rows: list[dict]) -> None:
             label="finite elements (work of the frame's motion)")
     ax.plot(angle, [r["frame_force_from_tau"] for r in rows], color="tab:orange", lw=1.0, ls="--",
             label=r"$a\,\tau\,\cos(\pi/4-\gamma/2)$ with the FE's $\tau$")
+    force = np.array([r["frame_force"] for r in rows])
+    turns = picture_frame.reversal_indices(angle)
+    turns = turns[np.abs(angle[turns]) > 1e-9]            # the peaks, not the returns to 0
+    if turns.size:
+        ax.plot(angle[turns], force[turns], ls="none", marker="o", ms=5, mfc="white",
+                mec="black", mew=1.0, zorder=4, label="reversal points (angle, force)")
+        for i in turns:
+            ax.annotate(f"{angle[i]:+.1f}\u00b0, {force[i]:.3g} N", (angle[i], force[i]),
+                        textcoords="offset points", xytext=(-6 if angle[i] > 0 else 6, 6),
+                        ha="right" if angle[i] > 0 else "left", fontsize=8, color="0.25")
     ax.axhline(0.0, color="0.6", lw=0.6)
     ax.axvline(0.0, color="0.6", lw=0.6)
     ax.set_xlabel(r"frame shear angle $\gamma$ (deg)")
     ax.set_ylabel("frame force P (N)")
-    ax.set_title(f"Picture frame, side {side:g} mm, {len(rows)} steps", fontsize=10)
+    ax.set_title(f"Picture frame, side {side:g} mm, {len(rows) - 1} load steps: force to pull "
+                 f"the frame's corners apart", fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper left", fontsize=9)
+    ax.legend(loc="upper left", fontsize=9, framealpha=0.9)
     fig.tight_layout()
     fig.savefig(folder / f"{FILE_STEM}.png")
     plt.close(fig)

@@ -139,23 +139,86 @@ def write_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
             writer.writerow([v if isinstance(v, (int, np.integer)) else repr(float(v)) for v in row])
 
 
+def reversal_indices(angle) -> np.ndarray:
+    """Indices of the points where a shear-angle history turns back (the increment changes
+    sign; repeated equal angles are skipped)."""
+    angle = np.asarray(angle, dtype=float)
+    moving = np.flatnonzero(np.diff(angle) != 0)
+    if moving.size < 2:
+        return np.zeros(0, dtype=int)
+    signs = np.sign(np.diff(angle)[moving])
+    turns = np.flatnonzero(signs[1:] != signs[:-1])
+    return moving[turns + 1]
+
+
+def cycle_starts(angle) -> np.ndarray:
+    """Indices where a new cycle starts: the history is back at (or crosses) 0 after a reversal."""
+    angle = np.asarray(angle, dtype=float)
+    reversals = set(reversal_indices(angle).tolist())
+    starts, turned = [0], False
+    for i in range(1, angle.size):
+        turned = turned or (i - 1) in reversals
+        if turned and (angle[i] == 0 or angle[i] * angle[i - 1] < 0) and i < angle.size - 1:
+            starts.append(i)
+            turned = False
+    return np.asarray(starts)
+
+
+def _draw_cycles(ax, columns, *, label, colours, lw, zorder, mark=True):
+    """tau against gamma_t, one colour per cycle, reversal points marked."""
+    angle, tau = np.asarray(columns["gamma_t_deg"]), np.asarray(columns["tau"])
+    angle = np.concatenate([[0.0], angle])
+    tau = np.concatenate([[0.0], tau])                     # the virgin state
+    starts = list(cycle_starts(angle)) + [angle.size - 1]
+    handles = []
+    for k, (a, b) in enumerate(zip(starts[:-1], starts[1:])):
+        piece = slice(a, b + 1)
+        peak = angle[piece][np.abs(angle[piece]).argmax()]
+        line, = ax.plot(angle[piece], tau[piece], color=colours[k % len(colours)], lw=lw,
+                        zorder=zorder, label=f"{label}: cycle to {peak:+.0f} deg")
+        handles.append(line)
+    if mark:
+        turns = reversal_indices(angle)
+        turns = turns[np.abs(angle[turns]) > 1e-9]        # the peaks, not the returns to 0
+        ax.plot(angle[turns], tau[turns], ls="none", marker="o", ms=5, mfc="white",
+                mec="black", mew=1.0, zorder=zorder + 1)
+        for i in turns:
+            ax.annotate(f"{angle[i]:+.0f}\u00b0, {tau[i]:.2f}", (angle[i], tau[i]),
+                        textcoords="offset points", xytext=(-6 if angle[i] > 0 else 6, 6),
+                        ha="right" if angle[i] > 0 else "left", fontsize=7.5, color="0.25")
+    return handles
+
+
 def plot(path: Path, curves: list[tuple[str, dict[str, np.ndarray]]], title: str) -> None:
-    """tau against gamma_t for each (label, columns), the first drawn boldest."""
+    """tau against gamma_t: one panel per (label, columns), like the paper's figures 6 (one
+    surface) and 8 (nested surfaces), on the same axes scales; each cycle in its own colour,
+    the reversal points marked with their angle and tau, the other model in grey behind."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
-    styles = [dict(color="tab:blue", lw=1.8), dict(color="tab:orange", lw=1.2, ls="--")]
-    for (label, columns), style in zip(curves, styles * len(curves)):
-        ax.plot(columns["gamma_t_deg"], columns["tau"], label=label, **style)
-    ax.axhline(0.0, color="0.6", lw=0.6)
-    ax.axvline(0.0, color="0.6", lw=0.6)
-    ax.set_xlabel(r"shear angle $\gamma_t$ (deg)")
-    ax.set_ylabel(r"projected shear stress $\tau$ (N/mm)")
-    ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper left", fontsize=9)
+    panels = list(reversed(curves)) if len(curves) > 1 else curves   # one surface first
+    fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 5.2), dpi=120,
+                             sharex=True, sharey=True, squeeze=False)
+    colours = list(plt.get_cmap("tab10").colors)
+    for ax, (label, columns) in zip(axes[0], panels):
+        for other_label, other in panels:
+            if other is not columns:
+                ax.plot(other["gamma_t_deg"], other["tau"], color="0.7", lw=1.0, zorder=1,
+                        label=f"{other_label.split(' (')[0]} (for comparison)")
+        _draw_cycles(ax, columns, label=label.split(" (")[0], colours=colours, lw=1.6, zorder=3)
+        ax.axhline(0.0, color="0.5", lw=0.6)
+        ax.axvline(0.0, color="0.5", lw=0.6)
+        ax.set_xlabel(r"shear angle $\gamma_t$ (deg)")
+        ax.set_title(label, fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8, framealpha=0.9)
+    axes[0][0].set_ylabel(r"projected shear stress $\tau$ (N/mm)")
+    if len(panels) > 1:
+        for ax, figure in zip(axes[0], ("paper fig. 6", "paper fig. 8")):
+            ax.text(0.98, 0.02, figure, transform=ax.transAxes, ha="right", va="bottom",
+                    fontsize=8, color="0.4")
+    fig.suptitle(title + "; circles: reversal points (angle, tau in N/mm)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

@@ -10,6 +10,12 @@ as it converges; a run that fails keeps what converged (exit code 1). A checkpoi
 (checkpoint.npz) every output.checkpoint_every steps and when a run stops (SIGTERM, Ctrl-C, a
 failure) lets `drape run CONFIG --resume` continue it. A folder that holds results is not
 overwritten without --overwrite. See docs/fe-solver.md.
+
+Progress (rank 0 only, on stdout): on a terminal one redrawn line, a bar over the load factor t
+from 0 to 1 with the step, Newton iterations, step size, elapsed time and an estimate of the
+time left; otherwise (a log file, a batch job, and always under mpirun) one plain line per
+converged step; nothing with --quiet. Cutbacks and warnings get lines of their own. View the
+results with `drape view`.
 """
 
 from __future__ import annotations
@@ -25,7 +31,10 @@ HELP = "run a forming job from a TOML config (serial or under mpirun)"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("config", metavar="CONFIG.toml", help="the job file")
+    parser.add_argument("config", metavar="CONFIG.toml",
+                        help="the job file (TOML: material, blank, mesh, steps, histories, "
+                             "boundaries; every key in docs/fe-solver.md), e.g. "
+                             "configs/bias_extension.toml")
     parser.add_argument("--output", default=None, metavar="DIR",
                         help="results folder (default: output.folder of the config, else "
                              "results/<config name>)")
@@ -35,7 +44,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=VALUE",
                         help="override a config value (TOML syntax), e.g. mesh.size=2.5 or "
                              "output.xdmf=false; repeatable")
-    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    parser.add_argument("--quiet", action="store_true",
+                        help="print nothing but errors (no progress, no summary line)")
     again = parser.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true",
                        help="continue from the checkpoint in the results folder (same config, "
@@ -54,12 +64,15 @@ def main(args) -> int:
     options = dict(parse_option(text) for text in args.petsc_option)
     job = load_job(args.config, overrides=args.set)
     comm = MPI.COMM_WORLD
-    log = None if args.quiet else (print if comm.rank == 0 else None)
+    progress = step_progress(job, enabled=comm.rank == 0 and not args.quiet)
     try:
-        summary = run_job(job, comm, output=args.output, petsc_options=options, log=log,
-                          resume=args.resume, overwrite=args.overwrite)
+        summary = run_job(job, comm, output=args.output, petsc_options=options,
+                          log=progress.message if progress.enabled else None,
+                          on_step=progress.on_step, resume=args.resume, overwrite=args.overwrite)
     except Interrupted as stopped:
         raise Interrupted(f"{stopped}; resume with: {resume_command(args, comm.size)}") from None
+    finally:
+        progress.close()
     if comm.rank == 0 and not args.quiet:
         print(f"drape run: {summary.steps} steps to t = {summary.t:g} in {summary.seconds:.1f} s; "
               f"results in {summary.folder}")
@@ -80,6 +93,34 @@ def resume_command(args, ranks: int) -> str:
     return f"mpirun -n {ranks} {text}" if ranks > 1 else text
 
 
+def step_progress(job, *, enabled: bool, stream=None):
+    """The progress display of `drape run` (drape.progress.Progress on stdout): a redrawn bar
+    over the load factor on a terminal, one line per converged step otherwise (and always under
+    mpirun), nothing when disabled; ``progress.on_step`` is run_job's on_step."""
+    import os
+    import sys
+
+    from drape.progress import Progress
+
+    progress = Progress(1.0, enabled=enabled, stream=stream if stream is not None else sys.stdout)
+    if any(name in os.environ for name in ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMI_RANK")):
+        # Open MPI hands its ranks a pseudo-terminal whether or not mpirun's own output is one:
+        # under mpirun a terminal cannot be told from a log file, so plain lines
+        progress.interactive = False
+    histories = list(job.config.history)
+
+    def on_step(row, problem=None):
+        notes = [f"{name}={row[name]:.4g}" for name in histories if name in row]
+        notes.append(f"max|gamma|={row['max_shear_angle_deg']:.3f} deg")
+        if row.get("cutbacks"):
+            notes.append(f"{row['cutbacks']} cutback(s)")
+        progress.step(row["step"], row["t"], row["newton_iterations"], row["dt"],
+                      note="  ".join(notes))
+
+    progress.on_step = on_step
+    return progress
+
+
 @dataclasses.dataclass
 class RunSummary:
     steps: int
@@ -94,7 +135,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             jit_params=None, resume=False, overwrite=False) -> RunSummary:
     """Run a loaded :class:`~drape.job.Job` on ``comm`` (default COMM_WORLD).
 
-    on_step(step_row, problem) is called on every rank after each converged step is written.
+    on_step(step_row, problem) is called on every rank after each converged step is written
+    (`drape run` shows its progress from there); log(text) gets the other messages (start,
+    warnings, cutbacks).
     Raises RunFailed (results so far written) when a step does not converge, Interrupted on
     SIGTERM/SIGINT (after the checkpoint), InputError if the results folder holds results and
     neither ``overwrite`` (start over) nor ``resume`` (continue from its checkpoint) is given.
@@ -210,10 +253,6 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
                      step.residual, step.seconds)
         writer.write_step(row, step.t, last=step.t >= 1.0 - 1e-12)
         checkpoints.step_done(step)
-        extras = "".join(f"  {name}={row[name]:.4g}" for name in loading.histories)
-        say(f"step {step.number:4d}  t={step.t:.5f}{extras}  newton={step.iterations}"
-            f"{f'  cutbacks={step.cutbacks}' if step.cutbacks else ''}"
-            f"  max|gamma|={row['max_shear_angle_deg']:.3f} deg")
         if on_step is not None:
             on_step(row, problem)
 

@@ -7,7 +7,9 @@
 #     dolfinx belongs to /usr/bin/python3) holding drape itself, editable, with no download.
 #
 # Idempotent: a second run checks and returns in about a second.
-# Environment: DRAPE_VENV (default: <repo>/.venv), DRAPE_EDITABLE=0 for a plain install.
+# Environment: DRAPE_VENV (default: <repo>/.venv), DRAPE_EDITABLE=0 for a plain install,
+# DRAPE_PARAVIEW=1 to add Debian's ParaView 5.11 and Xvfb for `drape view` (138 packages, about 800 MB
+# more, so not by default; tests/test_paraview.py installs them itself when missing).
 set -euo pipefail
 
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -20,6 +22,9 @@ apt_packages=(
   python3-venv python3-pip python3-setuptools python3-wheel
   openmpi-bin
 )
+if [ "${DRAPE_PARAVIEW:-0}" = 1 ]; then
+  apt_packages+=(paraview python3-paraview xvfb xauth)
+fi
 
 missing=()
 for pkg in "${apt_packages[@]}"; do

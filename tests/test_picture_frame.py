@@ -96,3 +96,15 @@ def test_cli_bad_history_and_cycles_exit_2(tmp_path):
         assert run.returncode == 2, (args, run.stderr)
         assert "Traceback" not in run.stderr and "error:" in run.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_reversal_points_and_cycles_of_the_plots():
+    from drape.picture_frame import cycle_starts, reversal_indices
+    history = np.concatenate([[0.0], cyclic_history([10, 20, -40], 5.0)])
+    # 0 5 10 5 0 5 10 15 20 15 10 5 0 -5 ... -40 ... 0
+    turns = reversal_indices(history)
+    assert history[turns].tolist() == [10.0, 0.0, 20.0, -40.0]   # 20 -> 0 -> -40 goes on
+    assert turns.tolist() == [2, 4, 8, 20]
+    assert cycle_starts(history).tolist() == [0, 4, 12]
+    assert reversal_indices([0.0, 1.0, 1.0, 2.0]).size == 0          # no turn, plateaus skipped
+    assert reversal_indices([0.0, 1.0, 1.0, 0.5]).tolist() == [2]    # the last point of the peak

@@ -1,0 +1,184 @@
+"""Open a results folder of `drape run` in ParaView: the blank warped by its displacement
+(scale 1), coloured by the shear angle (deg), the locking angle marked (colour-map range
++-locking angle, cells beyond it dark red / dark blue, black contour lines at +-locking angle),
+at the last written load step.
+
+    drape view results/bias_extension                        # the ParaView GUI
+    drape view results/bias_extension --screenshot shear.png # a PNG, off screen, then exit
+
+ParaView is Debian's (`apt-get install paraview python3-paraview`, plus `xvfb` for screenshots
+on a machine without a display); drape runs its shipped script drape/paraview_view.py with
+ParaView's `pvpython` (or `paraview --script=`). Without a display and without a screenshot,
+the command to run on a machine with one is printed. See docs/viewing.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from drape.errors import InputError, RunFailed
+
+HELP = "open a results folder in ParaView (shear-angle map on the deformed blank) or render a PNG"
+
+#: the locking angle marked when neither --locking-angle nor summary.json gives one (deg):
+#: a typical shear-locking angle of woven glass and carbon fabrics (35-50 deg); drape's law has
+#: no locking angle of its own, so pass your fabric's.
+DEFAULT_LOCKING_ANGLE = 40.0
+SCRIPT = Path(__file__).with_name("paraview_view.py")
+INSTALL_HINT = "apt-get install -y paraview python3-paraview xvfb"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("results", metavar="RESULTS",
+                        help="a results folder of `drape run` (it must hold fields.xdmf + .h5)")
+    parser.add_argument("--locking-angle", type=float, default=None, metavar="DEG",
+                        help="shear locking angle marked on the map, degrees, in (0, 90) "
+                             "(default: locking_angle_deg of RESULTS/summary.json if there, "
+                             f"else {DEFAULT_LOCKING_ANGLE:g})")
+    parser.add_argument("--screenshot", default=None, metavar="FILE.png",
+                        help="render off screen to this PNG and exit (under xvfb-run when "
+                             "there is no display) instead of opening the ParaView GUI")
+    parser.add_argument("--size", default="1200x900", metavar="WxH",
+                        help="screenshot size in pixels (default 1200x900)")
+    parser.add_argument("--time", type=float, default=None, metavar="T",
+                        help="load factor t in [0, 1] to show; the nearest written step "
+                             "(default: the last written step)")
+
+
+def locking_angle(results: Path, given: float | None) -> float:
+    """--locking-angle, else summary.json's locking_angle_deg, else the default (deg)."""
+    if given is not None:
+        value, source, key = given, None, "--locking-angle"
+    else:
+        summary = results / "summary.json"
+        if not summary.is_file():
+            return DEFAULT_LOCKING_ANGLE
+        try:
+            data = json.loads(summary.read_text())
+        except (OSError, ValueError) as error:
+            raise InputError(f"not readable JSON ({error})", source=str(summary),
+                             expected="a JSON object, e.g. {\"locking_angle_deg\": 40}") from None
+        if not isinstance(data, dict) or "locking_angle_deg" not in data:
+            return DEFAULT_LOCKING_ANGLE
+        value, source, key = data["locking_angle_deg"], str(summary), "locking_angle_deg"
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not math.isfinite(value) or not 0 < value < 90:
+        raise InputError("not a locking angle", source=source, key=key, value=value,
+                         expected="degrees in (0, 90), e.g. 40")
+    return float(value)
+
+
+def check_results(folder: str) -> Path:
+    path = Path(folder)
+    if not path.is_dir():
+        raise InputError("no such results folder", source=str(path),
+                         expected="a folder written by `drape run` (holding fields.xdmf)")
+    xdmf = path / "fields.xdmf"
+    if not xdmf.is_file() or not (path / "fields.h5").is_file():
+        raise InputError("no fields.xdmf + fields.h5 in this folder", source=str(path),
+                         expected="a folder written by `drape run` with output.xdmf = true")
+    head = xdmf.read_text(errors="replace")[:4096]
+    if "<Xdmf" not in head:
+        raise InputError("fields.xdmf is not an XDMF file", source=str(xdmf),
+                         expected="the XDMF file written by `drape run`")
+    return path
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        width = height = 0
+    if not (16 <= width <= 8192 and 16 <= height <= 8192):
+        raise InputError("not an image size", key="--size", value=text,
+                         expected="WIDTHxHEIGHT in pixels, each 16 to 8192, e.g. 1200x900")
+    return width, height
+
+
+def script_arguments(args, results: Path, angle: float) -> list[str]:
+    extra = [str(results.resolve()), "--locking-angle", repr(angle)]
+    if args.time is not None:
+        extra += ["--time", repr(args.time)]
+    return extra
+
+
+def main(args) -> int:
+    results = check_results(args.results)
+    angle = locking_angle(results, args.locking_angle)
+    width, height = parse_size(args.size)
+    if args.time is not None and not (math.isfinite(args.time) and 0 <= args.time <= 1):
+        raise InputError("not a load factor", key="--time", value=args.time,
+                         expected="t in [0, 1]")
+    pvpython = shutil.which("pvpython")
+    if pvpython is None:
+        raise InputError("ParaView is not installed (no pvpython on PATH)",
+                         expected=f"Debian's ParaView: `{INSTALL_HINT}` (as root)")
+    extra = script_arguments(args, results, angle)
+
+    if args.screenshot:
+        png = Path(args.screenshot).resolve()
+        if png.suffix.lower() != ".png" or not png.parent.is_dir():
+            raise InputError("not a PNG path in an existing folder", key="--screenshot",
+                             value=args.screenshot, expected="e.g. results/shear.png")
+        command = [pvpython, "--force-offscreen-rendering", str(SCRIPT), *extra,
+                   "--screenshot", str(png), "--size", f"{width}x{height}"]
+        if not os.environ.get("DISPLAY"):
+            # Debian's ParaView renders through GLX: off screen it still needs an X server
+            xvfb = shutil.which("xvfb-run")
+            if xvfb is None:
+                raise InputError("no display and no xvfb-run for off-screen rendering",
+                                 expected=f"`{INSTALL_HINT}` (as root), or a DISPLAY")
+            command = [xvfb, "-a", "-s", f"-screen 0 {width + 64}x{height + 64}x24", *command]
+        for attempt in (1, 2):
+            if png.exists():
+                png.unlink()
+            done = subprocess.run(command, capture_output=True, text=True,
+                                  stdin=subprocess.DEVNULL)
+            if done.returncode == 0 and png.is_file():
+                break
+            # pvpython under Xvfb occasionally aborts while creating its GL context (about 1
+            # run in 10 on a loaded machine, not reproducible on demand): one more attempt
+            print(f"drape view: ParaView exited with code {done.returncode} without a picture"
+                  f"{'; trying once more' if attempt == 1 else ''}", file=sys.stderr)
+        else:
+            lines = (done.stderr or done.stdout).strip().splitlines()
+            why = [line for line in lines if any(word in line for word in
+                                                 ("ERR", "rror", "annot", "ailed", "Signal"))]
+            detail = "; ".join((why or lines)[-4:])
+            raise RunFailed(f"ParaView did not write {png} (exit code {done.returncode}): {detail}")
+        print(done.stdout.strip().replace("paraview_view.py:", "drape view:"))
+        return 0
+
+    paraview = shutil.which("paraview")
+    wrapper = ("import sys\n"
+               f"sys.argv = {[str(SCRIPT), *extra]!r}\n"
+               f"exec(compile(open({str(SCRIPT)!r}).read(), {str(SCRIPT)!r}, 'exec'))\n")
+    if paraview is None or not os.environ.get("DISPLAY"):
+        reason = "no display (DISPLAY is not set)" if paraview else "no paraview GUI on PATH"
+        print(f"drape view: {reason}. On a machine with a display, run\n"
+              f"  paraview --script=WRAPPER.py\n"
+              f"with WRAPPER.py holding these three lines:\n{wrapper}"
+              f"or render a picture here with\n"
+              f"  drape view {args.results} --screenshot shear.png")
+        return 0
+    with tempfile.NamedTemporaryFile("w", suffix="_drape_view.py", delete=False) as stream:
+        stream.write(wrapper)
+    print(f"drape view: opening {results} in ParaView (locking angle {angle:g} deg)")
+    try:
+        code = subprocess.call([paraview, f"--script={stream.name}"])
+    finally:
+        os.unlink(stream.name)
+    if code != 0:
+        raise RunFailed(f"paraview exited with code {code}")
+    return 0
+
+
+if __name__ == "__main__":   # pragma: no cover
+    sys.exit("run as: drape view RESULTS")
