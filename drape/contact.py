@@ -95,11 +95,14 @@ class ContactResponse(NamedTuple):
 
 
 def traction(gap, normal, slip_increment, penalty, friction=DEFAULT_FRICTION,
-             regularisation=DEFAULT_SLIP_REGULARISATION) -> ContactResponse:
+             regularisation=DEFAULT_SLIP_REGULARISATION, touching_is_active=False) -> ContactResponse:
     """The penalty normal law with regularised Coulomb friction at N points (module docstring).
 
     gap (N,) mm; normal (N, 3) unit; slip_increment (N, 3) mm; penalty ε_N (N/mm³), friction μ
-    and regularisation δ (mm): scalars or arrays of N."""
+    and regularisation δ (mm): scalars or arrays of N. ``touching_is_active``: at g = 0 exactly
+    (fabric lying on a tool, as at the start of a forming job) the tangent is the one-sided one
+    of the contact side (ε_N n⊗n), so that Newton's first iteration sees the support; the
+    traction there is 0 either way."""
     g = np.asarray(gap, dtype=float)
     n = np.asarray(normal, dtype=float)
     ds = np.asarray(slip_increment, dtype=float)
@@ -111,23 +114,44 @@ def traction(gap, normal, slip_increment, penalty, friction=DEFAULT_FRICTION,
                          f"{ds.shape}")
     contact = g < 0.0
     p = np.where(contact, -eps * g, 0.0)
+    t, friction_tangent, phi, slip = _friction(p, n, ds, mu, delta)
+    # normal part of the tangent: dp/du = -eps H(-g) n, acting on (n - mu phi)
+    active = np.where((g <= 0.0) if touching_is_active else contact, eps, 0.0)
+    tangent = friction_tangent - active[:, None, None] * (n - mu[:, None] * phi)[:, :, None] * n[:, None, :]
+    state = np.where(~contact, SEPARATED, np.where(slip, SLIP, STICK))
+    return ContactResponse(t, tangent, p, state)
+
+
+def pressure_traction(pressure, normal, slip_increment, friction=DEFAULT_FRICTION,
+                      regularisation=DEFAULT_SLIP_REGULARISATION) -> ContactResponse:
+    """A prescribed pressure p (N,) [N/mm²] pushing along ``normal`` with the same regularised
+    Coulomb friction as :func:`traction` (a force-controlled tool: the pressure does not depend
+    on the displacement, so the tangent has the friction part only)."""
+    p = np.asarray(pressure, dtype=float)
+    n = np.asarray(normal, dtype=float)
+    ds = np.asarray(slip_increment, dtype=float)
+    mu = np.broadcast_to(np.asarray(friction, dtype=float), p.shape)
+    delta = np.broadcast_to(np.asarray(regularisation, dtype=float), p.shape)
+    t, tangent, _, slip = _friction(p, n, ds, mu, delta)
+    state = np.where(p <= 0.0, SEPARATED, np.where(slip, SLIP, STICK))
+    return ContactResponse(t, tangent, p, state)
+
+
+def _friction(p, n, ds, mu, delta):
+    """t = p (n - mu phi) and the friction part of dt/du, -mu p D(phi) (I - n n), for pressure
+    p (N,), normal n (N, 3), slip increment ds (N, 3); also phi and the slipping mask."""
     eye = np.eye(3)
     proj = eye - n[:, :, None] * n[:, None, :]                       # I - n⊗n
     ds_t = np.einsum("nij,nj->ni", proj, ds)
     s = np.linalg.norm(ds_t, axis=1)
-    slip = contact & (s > delta)
+    slip = (p > 0.0) & (s > delta)
     scale = np.where(slip, s, delta)                                 # φ = Δs_T / scale
     phi = ds_t / scale[:, None]
     t = p[:, None] * (n - mu[:, None] * phi)
-    # tangent
-    active = np.where(contact, eps, 0.0)
-    tangent = -active[:, None, None] * (n - mu[:, None] * phi)[:, :, None] * n[:, None, :]
     e = phi  # in slip, |φ| = 1: e = φ
     dphi = np.where(slip[:, None, None], eye - e[:, :, None] * e[:, None, :], eye)
     dphi = np.einsum("nij,njk->nik", dphi, proj) / scale[:, None, None]
-    tangent -= (mu * p)[:, None, None] * dphi
-    state = np.where(~contact, SEPARATED, np.where(slip, SLIP, STICK))
-    return ContactResponse(t, tangent, p, state)
+    return t, -(mu * p)[:, None, None] * dphi, phi, slip
 
 
 def penetration_report(gap, weights=None) -> dict:

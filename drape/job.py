@@ -16,7 +16,9 @@ from typing import Literal
 
 from drape.config import (describe, each, from_mapping, in_range, non_negative, positive,
                           read_toml, setting)
+from drape.contact import ContactParameters
 from drape.errors import InputError
+from drape.geometry.tools import ToolsConfig
 
 #: boundary names of each blank shape (gmsh physical groups); "boundary" is the whole edge
 BOUNDARY_NAMES = {"rectangle": ("left", "right", "bottom", "top"), "disc": ("edge",)}
@@ -172,6 +174,23 @@ class PictureFrameConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class ProcessConfig:
+    """A forming job: the punch moves down by the stroke (linearly in the load factor t) while
+    the blank holder presses the blank onto the die with a constant force (docs/forming.md)."""
+
+    stroke: float | None = setting(None, "punch travel (default: the tools' full stroke)",
+                                   positive, "mm")
+    holder_force: float = setting(200.0, "total blank-holder force, spread as a uniform pressure "
+                                  "over the blank under the holder's flat face", non_negative, "N")
+    locking_angle: float = setting(40.0, "shear angle above which the fabric is reported as "
+                                   "locked (summary.json, maps)", in_range(0.0, 90.0, lo_open=True,
+                                                                           hi_open=True), "deg")
+    contact_cutoff: float = setting(10.0, "meshed tools: exact closest points within this "
+                                    "distance of the tool (farther points are out of contact)",
+                                    positive, "mm")
+
+
+@dataclasses.dataclass(frozen=True)
 class JobConfig:
     """A ``drape run`` job."""
 
@@ -189,6 +208,11 @@ class JobConfig:
     boundary: tuple[BoundaryConfig, ...] = setting((), "prescribed displacements ([[boundary]])")
     output: OutputConfig = setting(OutputConfig(), "results")
     picture_frame: PictureFrameConfig | None = setting(None, "frame-force report (optional)")
+    process: ProcessConfig | None = setting(None, "a forming job: punch stroke, holder force, "
+                                            "locking angle (optional; needs [tools])")
+    tools: ToolsConfig | None = setting(None, "the rigid tools of a forming job "
+                                        "(docs/tools.md)")
+    contact: ContactParameters = setting(ContactParameters(), "tool-fabric contact and friction")
 
     def validate(self):
         from drape.loading import CONSTANTS, FUNCTIONS, VARIABLES
@@ -197,7 +221,13 @@ class JobConfig:
             if not name.isidentifier() or name in reserved:
                 raise InputError("not a usable history name", key=f"history.{name}", value=name,
                                  expected="an identifier other than " + ", ".join(sorted(reserved)))
-        if not self.boundary:
+        if self.process is not None:
+            self._validate_forming()
+        elif self.tools is not None:
+            raise InputError("tools without a [process] table", key="process",
+                             expected="a [process] table (stroke, holder_force) to run a forming "
+                                      "job with these tools")
+        if not self.boundary and self.process is None:
             raise InputError("no prescribed displacement", key="boundary",
                              expected="at least one [[boundary]] table (a blank held nowhere "
                                       "is singular)")
@@ -231,6 +261,11 @@ class JobConfig:
                              f"blank", key="mesh.size", value=self.mesh.size,
                              expected=f"at least {MIN_ELEMENTS_ACROSS} elements across the blank: "
                                       f"mesh.size <= {what} / {MIN_ELEMENTS_ACROSS} = {largest:g} mm")
+
+
+    def _validate_forming(self):
+        from drape.forming import check_forming
+        check_forming(self)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -29,8 +29,9 @@ class BlankMesh:
         return self.facet_tags.find(self.boundaries[name])
 
 
-def create_blank_mesh(comm, blank, mesh_config) -> BlankMesh:
-    """Mesh the blank described by the job's ``[blank]`` and ``[mesh]`` tables."""
+def create_blank_mesh(comm, blank, mesh_config, centred: bool = False) -> BlankMesh:
+    """Mesh the blank described by the job's ``[blank]`` and ``[mesh]`` tables; ``centred``
+    moves a rectangle from [0, length] x [0, width] to be centred on the origin (forming)."""
     import gmsh
     from dolfinx.io import gmshio
 
@@ -62,6 +63,9 @@ def create_blank_mesh(comm, blank, mesh_config) -> BlankMesh:
         if comm.rank == 0:
             gmsh.finalize()
     names = comm.bcast(names, root=0)
+    if centred and blank.shape == "rectangle":
+        msh.geometry.x[:, 0] -= blank.length / 2.0
+        msh.geometry.x[:, 1] -= blank.width / 2.0
     boundaries = {name: tag for name, tag in names.items() if name != BLANK}
     cells = msh.topology.index_map(2).size_global
     kind = msh.topology.cell_type.name

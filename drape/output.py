@@ -25,9 +25,12 @@ SNAPSHOT_FILE = "result.npz"
 
 class ResultsWriter:
     def __init__(self, folder: Path, problem, *, xdmf: bool = True, xdmf_every: int = 1,
-                 snapshot: str = "final", append: bool = False):
+                 snapshot: str = "final", append: bool = False,
+                 extra_cell_fields: dict | None = None):
         """``append``: continue the files of a resumed run (rewound to its checkpoint by
-        :func:`drape.checkpoint.rewind_outputs`) instead of starting them."""
+        :func:`drape.checkpoint.rewind_outputs`) instead of starting them.
+        ``extra_cell_fields``: {name: function returning one value per local cell}, written
+        as DG0 fields next to the law's (e.g. the contact pressure of a forming job)."""
         from dolfinx import fem, io
 
         self.folder = Path(folder)
@@ -48,6 +51,9 @@ class ResultsWriter:
                 ("shear_angle_deg", W0), ("plastic_shear_angle_deg", W0), ("tau", W0),
                 ("warp_tension", W0), ("weft_tension", W0), ("active_surface", W0),
                 ("warp_direction", W3), ("weft_direction", W3))}
+        self.extra_cell_fields = dict(extra_cell_fields or {})
+        for name in self.extra_cell_fields:
+            self.cell_fields[name] = fem.Function(W0, name=name)
         n = problem.n_cells
         self._dg0 = W0.dofmap.list.array[:n]
         self._dg3 = W3.dofmap.list.array[:n]
@@ -91,9 +97,11 @@ class ResultsWriter:
                   "plastic_shear_angle_deg": np.degrees(response.trial.gamma_p),
                   "tau": response.tau, "warp_tension": response.S11, "weft_tension": response.S22,
                   "active_surface": response.active_surface}
-        for name, data in values.items():
+        averages = {name: p.cell_average(data) for name, data in values.items()}
+        averages.update({name: compute() for name, compute in self.extra_cell_fields.items()})
+        for name, data in averages.items():
             function = self.cell_fields[name]
-            function.x.array[self._dg0] = p.cell_average(data)
+            function.x.array[self._dg0] = data
             function.x.scatter_forward()
         warp, weft = p.yarn_directions()
         for name, data in (("warp_direction", warp), ("weft_direction", weft)):

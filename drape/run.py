@@ -166,15 +166,24 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     claim(folder, RESULT_FILES, comm=comm, overwrite=overwrite, resume=resume,
           also_remove=ALSO_REMOVED, can_resume=True)
 
+    forming = None
+    if config.process is not None:
+        from drape.forming import Forming
+        forming = Forming(job, comm, log=say)
     try:
-        blank_mesh = create_blank_mesh(comm, config.blank, config.mesh)
+        blank_mesh = create_blank_mesh(comm, config.blank, config.mesh,
+                                       centred=forming is not None)
     except InputError as error:     # the mesher names the key; the job file is ours to add
         raise error.located(str(job.path)) from None
     say(f"drape run: {job.path}: {blank_mesh.description}, {comm.size} rank(s)")
     law = NestedSurfaceLaw(job.params)
     loading = Loading.from_config(config, source=str(job.path))
     problem = MembraneProblem(blank_mesh, law, config.blank.yarn_angle,
-                              config.regularisation.out_of_plane_damping, jit_params=jit_params)
+                              config.regularisation.out_of_plane_damping,
+                              contributions=forming.contributions if forming else None,
+                              jit_params=jit_params)
+    if forming is not None:
+        forming.bind(problem)
     motion = PrescribedMotion(problem.V, blank_mesh, loading)
     problem.bcs = motion.bcs
     area = comm.allreduce(problem.cell_areas.sum())
@@ -190,7 +199,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         say(f"drape run: resuming from the checkpoint of step {start[0]} (t = {start[1]:.6g})")
     writer = ResultsWriter(folder, problem, xdmf=config.output.xdmf,
                            xdmf_every=config.output.xdmf_every, snapshot=config.output.snapshot,
-                           append=start is not None)
+                           append=start is not None,
+                           extra_cell_fields={"contact_pressure": forming.contact_pressure}
+                           if forming else None)
     frame = config.picture_frame
     side = config.blank.length
     yarn_modulus = (job.params.mu * job.params.K1, job.params.mu * job.params.K2)
@@ -226,6 +237,16 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         tau_sum = comm.allreduce(float(response.tau.sum()))
         tau_count = comm.allreduce(response.tau.size)
         row["tau_mean"] = tau_sum / tau_count
+        if forming is not None:
+            row.update(forming.measure(t))
+            forming.committed(t)
+            # the punch's work (trapezoidal in the stroke) is the forming job's external work
+            before = rows[-1] if rows else {"punch_work": 0.0, "punch_force": 0.0, "stroke": 0.0}
+            row["punch_work"] = before["punch_work"] + 0.5 * (
+                before["punch_force"] + row["punch_force"]) * (row["stroke"] - before["stroke"])
+            row["external_work"] += row["punch_work"]
+            row["regularisation_share"] = (ledger["regularisation"] / abs(row["external_work"])
+                                           if row["external_work"] != 0.0 else 0.0)
         if frame is not None:
             angle = row[frame.angle]
             q = motion.conjugate_force(force, t, frame.angle)
@@ -244,6 +265,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         if signal_name:
             raise Interrupted(signal_name)
         motion.set_load(t)
+        if forming is not None:
+            forming.set_load(t)
+            forming.predict(t)
         return solver.solve()
 
     def accept(step):
@@ -260,9 +284,13 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     try:
         if start is None:
             motion.set_load(0.0)
+            if forming is not None:
+                forming.set_load(0.0)
             problem.evaluate()
             writer.write_step(record(0, 0.0), 0.0)
             start = (0, 0.0, None)
+        elif forming is not None:
+            forming.set_load(start[1])
         run_load_steps(config.steps, loading.breakpoints(), attempt, accept, problem.restore,
                        step0=start[0], t0=start[1], dt0=start[2], log=say)
     except RunFailed as failure:
@@ -284,6 +312,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         solver.close()
         if frame is not None and comm.rank == 0 and len(frame_rows) > 1:
             frame_force.write(folder, side, frame_rows)
+        if forming is not None and len(rows) > 1:
+            forming.finish(folder, rows, time.perf_counter() - started)
     timings = dict(problem.timings)
     timings.update({f"count_{k}": v for k, v in problem.counts.items()})
     return RunSummary(rows[-1]["step"], rows[-1]["t"], time.perf_counter() - started, folder,

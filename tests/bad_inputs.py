@@ -129,6 +129,27 @@ def tools(old: str | None = None, new: str = "", text: str | None = None, **extr
 
 RUN = ("run", "job.toml", "--quiet")
 
+#: a small valid forming job (the hemisphere); forming cases edit it
+FORMING = """\
+title = "hemisphere"
+material = "material.toml"
+
+[blank]
+shape = "rectangle"
+length = 200.0
+width = 200.0
+
+[mesh]
+size = 3.9
+
+[process]
+stroke = 10.0
+holder_force = 200.0
+
+[tools]
+kind = "hemisphere"
+"""
+
 
 # --- the cases --------------------------------------------------------------------------------
 
@@ -171,6 +192,24 @@ CASES: list[Case] = [
     Case("run-mesh-too-fine", "`[mesh] size = 0.01`: some 50 million elements", RUN,
          job(edit(JOB, "size = 10.0", "size = 0.01")), "job.toml", "mesh.size", "0.01",
          "a size giving at most 4e+06 elements"),
+    Case("forming-stroke-too-large", "`[process] stroke = 80` with hemisphere tools that "
+         "allow 50 mm", RUN, job(edit(FORMING, "stroke = 10.0", "stroke = 80.0")), "job.toml",
+         "process.stroke", "80.0", "<= 50 mm, the full stroke of these hemisphere tools",
+         ("larger than the tools allow",)),
+    Case("forming-mesh-too-coarse-for-tools", "`[mesh] size = 8` against the die's 5 mm entry "
+         "fillet", RUN, job(edit(FORMING, "size = 3.9", "size = 8.0")), "job.toml", "mesh.size",
+         "8.0", "<= 3.93 mm", ("too coarse for the tools",)),
+    Case("forming-blank-beyond-die", "`[blank] length = width = 250`: corners beyond the "
+         "150 mm die", RUN, job(edit(edit(FORMING, "length = 200.0", "length = 250.0"),
+                                    "width = 200.0", "width = 250.0")),
+         "job.toml", "blank.length", None, "a blank within r = 150 mm",
+         ("reaches beyond the die",)),
+    Case("forming-negative-holder-force", "`[process] holder_force = -5`", RUN,
+         job(edit(FORMING, "holder_force = 200.0", "holder_force = -5.0")), "job.toml",
+         "process.holder_force", "-5.0", "a number >= 0"),
+    Case("forming-unknown-tool-kind", "`[tools] kind = \"cone\"`", RUN,
+         job(edit(FORMING, 'kind = "hemisphere"', 'kind = "cone"')), "job.toml", "tools.kind",
+         "'cone'", "one of 'hemisphere', 'double_dome', 'step'"),
     Case("run-yarn-angle-range", "`[blank] yarn_angle = 135` (accepted: -90 to 90)", RUN,
          job(edit(JOB, "yarn_angle = 45.0", "yarn_angle = 135.0")), "job.toml",
          "blank.yarn_angle", "135.0", "a number in [-90.0, 90.0]"),

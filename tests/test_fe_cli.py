@@ -28,6 +28,11 @@ SHORT_OVERRIDES = {
     # the +-45 deg lattice at 10 mm, the clamp pulled 6 mm (about 10 deg of shear)
     "bias_extension.toml": ["mesh.size=10", "history.d.values=[0, 6]", "steps.initial=0.1",
                             "steps.maximum=0.2"],
+    # forming: the coarsest mesh the tools allow, the punch 0.5 mm down in 2 steps
+    "hemisphere.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5"],
+    "hemisphere_45.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5"],
+    "double_dome.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5"],
+    "double_dome_45.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5"],
 }
 #: top-level configs/*.toml files that are not `drape run` jobs (name -> why); materials and
 #: tools live in configs/materials and configs/tools

@@ -1,0 +1,218 @@
+"""What a forming job reports: the shear summary, edge draw-in, force-stroke table and plots,
+and the shear-angle maps on the formed part and on the flat blank.
+
+Functions taking ``problem`` are collective (every rank calls them; rank 0 gets the result);
+the writers and plots run on rank 0 only.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+FORCE_STROKE_FILE = "force_stroke.csv"
+FORCE_STROKE_COLUMNS = ("step", "t", "stroke", "punch_force", "die_force", "holder_force",
+                        "punch_work", "max_penetration", "punch_contact_area",
+                        "max_shear_angle_deg", "regularisation_share", "newton_iterations")
+#: quadrilateral vertices in DOLFINx order (tensor product) -> around the cell
+QUAD_OUTLINE = [0, 1, 3, 2]
+
+
+def gather_cells(problem) -> dict | None:
+    """Every cell's outline on the flat blank (X, Y) and on the formed part (x, y, z), and its
+    mean shear angle (deg), gathered on rank 0."""
+    V = problem.V
+    n = problem.n_cells
+    dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)[:n]
+    if dofs.shape[1] == 4:
+        dofs = dofs[:, QUAD_OUTLINE]
+    X = V.tabulate_dof_coordinates()
+    u = problem.u.x.array.reshape(-1, 3)
+    reference = X[dofs][:, :, :2]
+    formed = X[dofs] + u[dofs]
+    shear = problem.cell_average(problem.response.gamma_t_deg)
+    parts = problem.comm.gather((reference, formed, shear), root=0)
+    if problem.comm.rank != 0:
+        return None
+    return {"reference": np.concatenate([p[0] for p in parts]),
+            "formed": np.concatenate([p[1] for p in parts]),
+            "shear": np.concatenate([p[2] for p in parts])}
+
+
+def shear_summary(problem, locking_angle: float, comm) -> dict:
+    """Largest |shear angle| at the law's points and where (flat blank X, Y and formed x, y, z
+    of its cell's centre); the reference area above the locking angle."""
+    gamma = np.abs(problem.response.gamma_t_deg)
+    areas = (problem._average_weights * problem.cell_areas[:, None]).ravel()
+    locked = float(areas[gamma > locking_angle].sum())
+    total = float(areas.sum())
+    if gamma.size:
+        i = int(np.argmax(gamma))
+        cell = i // problem.nq
+        V = problem.V
+        dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)[cell]
+        centre = (V.tabulate_dof_coordinates()[dofs] + problem.u.x.array.reshape(-1, 3)[dofs]).mean(axis=0)
+        best = (float(gamma[i]), problem.point_coordinates[i].tolist(), centre.tolist())
+    else:
+        best = (-1.0, None, None)
+    everyone = comm.gather(best, root=0)
+    locked, total = comm.allreduce(locked), comm.allreduce(total)
+    if comm.rank != 0:
+        return {}
+    value, flat, formed = max(everyone, key=lambda b: b[0])
+    return {"max_shear_angle_deg": value, "max_shear_flat_xy_mm": flat,
+            "max_shear_formed_xyz_mm": formed, "locking_angle_deg": locking_angle,
+            "area_above_locking_mm2": locked, "blank_area_mm2": total,
+            "fraction_above_locking": locked / total if total else 0.0}
+
+
+def edge_points(blank) -> dict[str, tuple[float, float]]:
+    """Reference points where draw-in is reported: mid-sides and corners of a (centred)
+    rectangle, eight points 45 deg apart on a disc's edge."""
+    if blank.shape == "rectangle":
+        a, b = blank.length / 2.0, blank.width / 2.0
+        return {"mid_right": (a, 0.0), "mid_top": (0.0, b), "mid_left": (-a, 0.0),
+                "mid_bottom": (0.0, -b), "corner_top_right": (a, b), "corner_top_left": (-a, b),
+                "corner_bottom_left": (-a, -b), "corner_bottom_right": (a, -b)}
+    r = blank.radius
+    return {f"edge_{angle}deg": (r * np.cos(np.radians(angle)), r * np.sin(np.radians(angle)))
+            for angle in range(0, 360, 45)}
+
+
+def draw_in(problem, blank, comm) -> dict:
+    """Draw-in (mm) of the blank's edge at :func:`edge_points`: the in-plane displacement of the
+    node there towards the blank's centre, -u . X/|X| (positive: the edge moved in)."""
+    X = problem.V.tabulate_dof_coordinates()[:, :2]
+    owned = problem.V.dofmap.index_map.size_local
+    X = X[:owned]
+    u = problem.u.x.array.reshape(-1, 3)[:owned]
+    out = {}
+    for name, target in edge_points(blank).items():
+        target = np.asarray(target)
+        if owned:
+            d = np.linalg.norm(X - target, axis=1)
+            i = int(np.argmin(d))
+            radial = target / np.linalg.norm(target)
+            candidate = (float(d[i]), float(-(u[i, :2] @ radial)))
+        else:
+            candidate = (np.inf, 0.0)
+        out[name] = min(comm.allgather(candidate))[1]
+    return {"draw_in_mm": out}
+
+
+# --- rank 0 writers ----------------------------------------------------------------------------------
+
+def write_force_stroke(folder: Path, rows: list) -> None:
+    columns = [c for c in FORCE_STROKE_COLUMNS if c in rows[-1]]
+    with (Path(folder) / FORCE_STROKE_FILE).open("w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow([row[c] if isinstance(row[c], int) else repr(float(row[c]))
+                             for c in columns])
+
+
+def _pyplot():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def plot_force_stroke(folder: Path, rows: list, title: str) -> None:
+    plt = _pyplot()
+    stroke = np.array([r["stroke"] for r in rows])
+    fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
+    ax.plot(stroke, [r.get("punch_force", 0.0) for r in rows], color="tab:blue", lw=2.0,
+            marker="o", ms=2.5, label="punch force (contact force summed over the blank)")
+    if "holder_force" in rows[-1]:
+        ax.plot(stroke, [r.get("holder_force", 0.0) for r in rows], color="tab:gray", lw=1.2,
+                ls="--", label="blank-holder force (prescribed)")
+    ax.set_xlabel("punch stroke (mm)")
+    ax.set_ylabel("force (N)")
+    ax.set_title(title or "punch force against stroke")
+    ax.grid(True, alpha=0.3)
+    ax.set_xlim(left=0.0)
+    ax.set_ylim(bottom=0.0)
+    ax.legend(loc="upper left", frameon=False)
+    fig.tight_layout()
+    fig.savefig(Path(folder) / "force_stroke.png")
+    plt.close(fig)
+
+
+def plot_shear_maps(folder: Path, cells: dict, locking_angle: float, title: str) -> None:
+    """shear_formed.png (the formed part seen from above and in perspective) and shear_flat.png
+    (the flat blank: where the fabric will shear), |shear angle| per cell, the locking angle
+    drawn as a contour."""
+    from matplotlib.collections import PolyCollection
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    plt = _pyplot()
+    shear = np.abs(cells["shear"])
+    top = max(float(shear.max()), locking_angle * 1.05)
+    cmap = plt.get_cmap("turbo")
+    norm = plt.Normalize(0.0, top)
+
+    def contour(ax, polygons):
+        centres = polygons.mean(axis=1)
+        if shear.max() > locking_angle and len(centres) > 3:
+            ax.tricontour(centres[:, 0], centres[:, 1], shear, levels=[locking_angle],
+                          colors="white", linewidths=1.6)
+            ax.tricontour(centres[:, 0], centres[:, 1], shear, levels=[locking_angle],
+                          colors="black", linewidths=0.8, linestyles="--")
+
+    def colourbar(fig, ax):
+        bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.85)
+        bar.set_label("|shear angle| (deg)")
+        bar.ax.axhline(locking_angle, color="black", lw=1.5)
+        bar.ax.text(1.05, locking_angle / top, f" locking {locking_angle:g}",
+                    transform=bar.ax.transAxes, va="center", fontsize=8)
+
+    # the flat blank
+    fig, ax = plt.subplots(figsize=(7.0, 6.0), dpi=120)
+    ax.add_collection(PolyCollection(cells["reference"], array=shear, cmap=cmap, norm=norm,
+                                     edgecolors="face", linewidths=0.2))
+    contour(ax, cells["reference"])
+    ax.autoscale_view()
+    ax.set_aspect("equal")
+    ax.set_xlabel("X on the flat blank (mm)")
+    ax.set_ylabel("Y on the flat blank (mm)")
+    ax.set_title((title + "\n" if title else "") + "shear angle at the end, on the flat blank "
+                 "(dashed: locking angle)", fontsize=10)
+    colourbar(fig, ax)
+    fig.tight_layout()
+    fig.savefig(Path(folder) / "shear_flat.png")
+    plt.close(fig)
+
+    # the formed part: from above, and in perspective
+    formed = cells["formed"]
+    fig = plt.figure(figsize=(13.0, 6.0), dpi=120)
+    ax = fig.add_subplot(1, 2, 1)
+    order = np.argsort(formed[:, :, 2].mean(axis=1))         # higher cells drawn last
+    ax.add_collection(PolyCollection(formed[order][:, :, :2], array=shear[order], cmap=cmap,
+                                     norm=norm, edgecolors="face", linewidths=0.2))
+    ax.autoscale_view()
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title("formed part, from above", fontsize=10)
+    ax3 = fig.add_subplot(1, 2, 2, projection="3d")
+    ax3.add_collection3d(Poly3DCollection(formed, facecolors=cmap(norm(shear)), edgecolors="none"))
+    span = np.ptp(formed.reshape(-1, 3), axis=0)
+    low = formed.reshape(-1, 3).min(axis=0)
+    ax3.set_xlim(low[0], low[0] + span[0])
+    ax3.set_ylim(low[1], low[1] + span[1])
+    ax3.set_zlim(low[2], low[2] + max(span[2], 1.0))
+    ax3.set_box_aspect((span[0], span[1], max(span[2], 1.0)))
+    ax3.view_init(elev=35, azim=-60)
+    ax3.set_xlabel("x (mm)")
+    ax3.set_ylabel("y (mm)")
+    ax3.set_zlabel("z (mm)")
+    ax3.set_title("formed part", fontsize=10)
+    colourbar(fig, ax3)
+    fig.suptitle((title + ": " if title else "") + "shear angle at the end of the stroke")
+    fig.tight_layout()
+    fig.savefig(Path(folder) / "shear_formed.png")
+    plt.close(fig)

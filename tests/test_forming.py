@@ -1,0 +1,142 @@
+"""Forming jobs (drape/forming.py): the hemisphere's shear field and its symmetries, what a
+forming run writes, penetration, the force-controlled holder, the double dome starting.
+
+The runs are short (the punch 2 mm down on the coarsest mesh the tools allow): deeper runs take
+many minutes (docs/forming.md, "Limits").
+"""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from conftest import CONFIGS
+
+SHORT = ["process.stroke=2", "steps.initial=0.1", "steps.maximum=0.1"]
+
+
+def run(config, folder, overrides=()):
+    from mpi4py import MPI
+
+    from drape.job import load_job
+    from drape.run import run_job
+    job = load_job(CONFIGS / config, overrides=list(SHORT) + list(overrides))
+    summary = run_job(job, MPI.COMM_WORLD, output=str(folder))
+    MPI.COMM_WORLD.barrier()
+    return job, summary
+
+
+@pytest.fixture(scope="module")
+def hemisphere(tmp_path_factory):
+    from mpi4py import MPI
+    folder = tmp_path_factory.mktemp("hemisphere") if MPI.COMM_WORLD.rank == 0 else None
+    folder = MPI.COMM_WORLD.bcast(folder, root=0)
+    job, summary = run("hemisphere.toml", folder)
+    return job, summary, folder
+
+
+def rows_of(folder, name):
+    with (folder / name).open() as stream:
+        return list(csv.DictReader(stream))
+
+
+def test_outputs_of_a_forming_run(hemisphere):
+    job, summary, folder = hemisphere
+    for name in ("fields.xdmf", "steps.csv", "force_stroke.csv", "force_stroke.png",
+                 "shear_flat.png", "shear_formed.png", "summary.json", "result.npz"):
+        assert (folder / name).is_file(), name
+    report = json.loads((folder / "summary.json").read_text())
+    steps = rows_of(folder, "steps.csv")
+    forces = rows_of(folder, "force_stroke.csv")
+    assert len(forces) == len(steps) == report["steps"] + 1
+    assert float(forces[-1]["stroke"]) == pytest.approx(2.0, rel=1e-12)
+    assert report["max_shear_angle_deg"] == pytest.approx(
+        max(float(r["max_shear_angle_deg"]) for r in steps[-1:]), rel=1e-12)
+    assert report["max_punch_force_N"] == pytest.approx(
+        max(float(r["punch_force"]) for r in forces), rel=1e-12)
+    assert report["max_punch_force_N"] > 0.0
+    # the force-controlled holder applies exactly its force at every step
+    for row in steps[1:]:
+        assert float(row["holder_force"]) == pytest.approx(200.0, rel=1e-12)
+    assert "contact_pressure" in (folder / "fields.xdmf").read_text()
+
+
+def test_penetration_stays_far_below_the_element_size(hemisphere):
+    job, _, folder = hemisphere
+    h = job.config.mesh.size
+    for row in rows_of(folder, "steps.csv"):
+        assert float(row["max_penetration"]) < 0.01 * h, row["step"]
+
+
+def point_fields(folder):
+    data = np.load(folder / "result.npz")
+    return data["point_xy"], data["gamma_t_deg"]
+
+
+def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
+    """Mirror in the diagonal (x <-> y swaps warp and weft: gamma unchanged) to Newton's
+    tolerance; mirror in a yarn axis (x -> -x reverses the warp: gamma -> -gamma) only as far
+    as the law is odd in gamma -- the paper's q has even terms, so tau(-g) != -tau(g) -- hence
+    a looser tolerance there. The largest shear lies on a diagonal, and the shear along the yarn
+    axes through the pole vanishes (mirror pairs cancel)."""
+    from mpi4py import MPI
+    if MPI.COMM_WORLD.rank != 0:
+        return
+    _, summary, folder = hemisphere
+    xy, gamma = point_fields(folder)
+    tree = cKDTree(xy)
+    top = np.abs(gamma).max()
+    assert top > 0.5
+
+    def mirrored(transform):
+        d, j = tree.query(transform(xy))
+        assert d.max() < 1e-6
+        return gamma[j]
+
+    diagonal = mirrored(lambda p: p[:, ::-1])
+    assert np.abs(diagonal - gamma).max() < 1e-6 * top
+    for flip in (lambda p: p * [-1, 1], lambda p: p * [1, -1]):
+        assert np.abs(mirrored(flip) + gamma).max() < 0.05 * top
+    near_axis = (np.abs(xy[:, 1]) < 2.0) | (np.abs(xy[:, 0]) < 2.0)
+    pairs = gamma + mirrored(lambda p: p * [1, -1])
+    assert np.abs(pairs[near_axis]).max() < 0.05 * top
+    i = np.argmax(np.abs(gamma))
+    assert abs(abs(xy[i, 0]) - abs(xy[i, 1])) < 3.0     # on a diagonal, within an element
+
+
+def test_hemisphere_45_is_the_0_90_field_rotated(hemisphere, tmp_path):
+    """Yarns at +-45 on the same square blank: near the punch (r < 45 mm, where the blank's
+    outline is far) the |shear| field is the 0/90 one turned by 45 degrees; its peak lies on a
+    yarn-axis direction of the blank, i.e. on the diagonal of the yarn frame."""
+    from mpi4py import MPI
+    comm = MPI.COMM_WORLD
+    folder = comm.bcast(tmp_path if comm.rank == 0 else None, root=0)
+    run("hemisphere_45.toml", folder / "h45")
+    if comm.rank != 0:
+        return
+    xy0, g0 = point_fields(hemisphere[2])
+    xy45, g45 = point_fields(folder / "h45")
+    c, s = np.cos(np.pi / 4), np.sin(np.pi / 4)
+    turned = xy0 @ np.array([[c, s], [-s, c]])          # 0/90 points turned by +45 deg
+    inner = np.hypot(*xy45.T) < 45.0
+    d, j = cKDTree(turned).query(xy45[inner])
+    expected = np.abs(g0[j])
+    assert np.abs(np.abs(g45[inner]) - expected).max() < 0.15 * expected.max() + 0.1
+    assert np.abs(g45).max() == pytest.approx(np.abs(g0).max(), rel=0.15)
+
+
+@pytest.mark.slow
+def test_double_dome_starts_and_presses(tmp_path):
+    from mpi4py import MPI
+    comm = MPI.COMM_WORLD
+    folder = comm.bcast(tmp_path if comm.rank == 0 else None, root=0)
+    job, summary = run("double_dome.toml", folder / "dd", ["process.stroke=1",
+                                                            "steps.initial=0.25",
+                                                            "steps.maximum=0.25"])
+    if comm.rank == 0:
+        report = json.loads((folder / "dd" / "summary.json").read_text())
+        assert report["stroke_mm"] == pytest.approx(1.0)
+        assert report["max_punch_force_N"] > 0.0
+        assert report["max_penetration_mm"] < 0.01 * job.config.mesh.size
