@@ -188,7 +188,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     problem.bcs = motion.bcs
     area = comm.allreduce(problem.cell_areas.sum())
     force_scale = job.params.mu * max(job.params.K1, job.params.K2) * math.sqrt(area)
-    solver = NewtonSolver(problem, config.solver, force_scale, petsc_options)
+    stop = StopRequest()
+    solver = NewtonSolver(problem, config.solver, force_scale, petsc_options,
+                          interrupted=lambda: bool(stop.signal))
     rows, frame_rows = [], []
     ledger = {"external": 0.0, "regularisation": 0.0, "f": None, "g": None}
     checkpoints = Checkpoints(folder, problem, job, config.output.checkpoint_every, rows,
@@ -260,15 +262,20 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         rows.append(row)
         return row
 
-    def attempt(t):
-        signal_name = stop.requested(comm)
+    def stop_if_requested():
+        signal_name = stop.requested(comm)   # collective: every rank stops at the same point
         if signal_name:
             raise Interrupted(signal_name)
+
+    def attempt(t):
+        stop_if_requested()
         motion.set_load(t)
         if forming is not None:
             forming.set_load(t)
             forming.predict(t)
-        return solver.solve()
+        result = solver.solve()
+        stop_if_requested()   # a signal during the attempt cut it short: not a failed step
+        return result
 
     def accept(step):
         ledger["regularisation"] += problem.regularisation_work()
@@ -280,7 +287,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         if on_step is not None:
             on_step(row, problem)
 
-    stop = StopRequest().install()
+    stop.install()
     try:
         if start is None:
             motion.set_load(0.0)

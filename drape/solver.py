@@ -145,10 +145,16 @@ class SolveResult:
 class NewtonSolver:
     """SNES over a :class:`~drape.membrane.MembraneProblem` (prefix ``drape_``)."""
 
-    def __init__(self, problem, config, force_scale: float, extra_options: dict | None = None):
+    def __init__(self, problem, config, force_scale: float, extra_options: dict | None = None,
+                 interrupted=None):
+        """``interrupted()``: this rank's own "stop now" flag (e.g. a signal arrived). The ranks
+        combine their flags (an allreduce) before every residual evaluation; when one is set,
+        the callback raises on every rank at once, which ends SNES there (not after the line
+        search and the remaining iterations) with the reason "interrupted"."""
         from petsc4py import PETSc
 
         self.problem = problem
+        self.interrupted = interrupted
         self.options = default_options(config, force_scale)
         self.options.update({k: _option_text(v) for k, v in config.petsc.items()})
         self.options.update({k: _option_text(v) for k, v in (extra_options or {}).items()})
@@ -165,12 +171,20 @@ class NewtonSolver:
         if config.linear == "iterative":
             self.A.setNearNullSpace(rigid_body_modes(problem.V))
             split_in_plane(problem.V, snes.getKSP().getPC())
-        snes.setFunction(problem.residual, self.b)
+        snes.setFunction(self._residual, self.b)
         snes.setJacobian(problem.jacobian, self.A)
         snes.setFromOptions()
         self._reasons = {getattr(PETSc.SNES.ConvergedReason, name): name
                          for name in dir(PETSc.SNES.ConvergedReason) if name.isupper()
                          or name.startswith(("CONVERGED", "DIVERGED"))}
+
+    def _residual(self, snes, x, b) -> None:
+        if self.interrupted is not None:
+            from mpi4py import MPI
+            if self.problem.comm.allreduce(bool(self.interrupted()), op=MPI.LOR):
+                self.stopped = True
+                raise _Stop()
+        self.problem.residual(snes, x, b)
 
     def solve(self) -> SolveResult:
         """Newton from the current displacement (the committed one) to the prescribed values."""
@@ -179,11 +193,14 @@ class NewtonSolver:
         u = self.problem.u
         u.vector.copy(self.x)
         self.problem.nonfinite.clear()
+        self.stopped = False
         try:
             self.snes.solve(None, self.x)
             reason = self.snes.getConvergedReason()
+        except _Stop:                  # petsc4py re-raises the callback's exception
+            reason, failure = -100, "interrupted"
         except PETSc.Error as error:   # a failure inside PETSc (e.g. a factorisation) = divergence
-            reason, failure = -100, str(error)
+            reason, failure = -100, "interrupted" if self.stopped else str(error)
         else:
             failure = None
         self.x.copy(u.vector)
@@ -207,6 +224,10 @@ class NewtonSolver:
         self.A.destroy()
         self.b.destroy()
         self.x.destroy()
+
+
+class _Stop(Exception):
+    """Raised by the residual callback on every rank to end SNES (interrupted)."""
 
 
 def nonfinite_reason(where: set[str]) -> str:

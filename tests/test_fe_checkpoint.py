@@ -35,16 +35,40 @@ def drape(*args, ranks=1):
                           env=ENV, timeout=600)
 
 
+def children(pid):
+    """Process ids whose parent is pid (Linux /proc)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as stream:
+                    fields = stream.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.append(int(entry))
+    return found
+
+
 def run_and_terminate(folder, ranks=1):
-    """Start the short job, SIGTERM it (mpirun forwards it to every rank) as soon as its first
-    checkpoint exists; returns the finished process's return code and stderr."""
+    """Start the short job, SIGTERM it as soon as its first checkpoint exists; returns the
+    finished process's return code and stderr. Under mpirun the ranks get the SIGTERM, as from
+    a batch system that signals every process of a job: mpirun itself answers a SIGTERM with
+    SIGCONT, a SIGTERM to the ranks only after odls_base_sigkill_timeout (1 s) and SIGKILL 1 s
+    later (docs/fe-solver.md, "Signals")."""
     process = subprocess.Popen(command("run", CONFIGS / "bias_extension.toml", "--output", folder,
                                        *SHORT, ranks=ranks),
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
                                env=ENV)
     while not (folder / "checkpoint.npz").exists() and process.poll() is None:
         time.sleep(0.01)
-    process.send_signal(signal.SIGTERM)
+    if ranks == 1:
+        process.send_signal(signal.SIGTERM)
+    else:
+        ranks_found = children(process.pid)
+        assert len(ranks_found) == ranks, ranks_found
+        for pid in ranks_found:
+            os.kill(pid, signal.SIGTERM)
     _, err = process.communicate(timeout=300)
     return process.returncode, err
 
@@ -274,3 +298,33 @@ def test_a_persistent_nan_fails_the_run_naming_it(comm, shared_tmp, monkeypatch,
         assert all(np.isfinite(float(v)) for r in rows for v in r.values())
         with np.load(folder / "checkpoint.npz") as data:
             assert '"step": %d,' % step in str(data["meta"])
+
+
+def test_a_signal_during_a_newton_attempt_ends_it_there(comm, shared_tmp, monkeypatch):
+    """A SIGTERM noted in the middle of a Newton attempt (on rank 0 only) ends the attempt on
+    every rank before the next residual evaluation, not after the line search and the attempt's
+    remaining iterations; the run stops after the last converged step (Interrupted)."""
+    from drape.errors import Interrupted
+    from drape.job import load_job
+    from drape.membrane import MembraneProblem
+    from drape.run import run_job
+
+    calls = []
+    original = MembraneProblem.residual
+
+    def residual(self, snes, x, b):
+        original(self, snes, x, b)
+        calls.append(len(calls))
+        if len(calls) == 40 and comm.rank == 0:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(MembraneProblem, "residual", residual)
+    job = load_job(CONFIGS / "bias_extension.toml", overrides=[
+        "mesh.size=10", "steps.maximum=0.04", "output.xdmf=false"])
+    with pytest.raises(Interrupted) as stopped:
+        run_job(job, comm, output=shared_tmp / "run")
+    assert "SIGTERM received; stopped after step" in str(stopped.value)
+    print(f"residual evaluations: {len(calls)} (signal at the 40th)")
+    assert len(calls) == 40
+    rows = read_steps(shared_tmp / "run")
+    assert 3 <= len(rows) - 1 < 20
