@@ -9,6 +9,14 @@ traction t the tool exerts on the fabric (N/mm², per unit reference area), its 
 dt/du with respect to the fabric displacement (3×3 per point) and the contact pressure.
 
 Normal law (penalty):   p = ε_N ⟨-g⟩,  t_N = p n        (⟨x⟩ = max(x, 0))
+or, with a smoothing distance g0 > 0 (what forming jobs use), the C1 penalty
+
+    p = ε_N (g0/2 - g)          for g < 0
+    p = ε_N (g0 - g)² / (2 g0)  for 0 <= g < g0,     p = 0 beyond g0,
+
+which starts to push a fraction of g0 before the fabric touches and has a continuous
+stiffness -dp/dg (ε_N for g <= 0, falling linearly to 0 at g0): points entering and leaving
+contact change Newton's tangent smoothly, not in one jump (docs/forming.md measures the effect).
 Friction (regularised Coulomb, stick zone of width δ):
     Δs_T = (I - n⊗n) Δs,   s = |Δs_T|
     t_T = -μ p Δs_T / δ      if s <= δ   (stick: an elastic tangential spring μ p / δ)
@@ -17,7 +25,7 @@ Friction (regularised Coulomb, stick zone of width δ):
 
 Tangent (g, Δs depending on u through dg/du = n, dΔs/du = I; the tool's curvature term
 dn/du is neglected: exact for flat tools, first order in g/R on curved ones):
-    dt/du = -ε_N H(-g) (n - μ φ) ⊗ n  -  μ p Dφ (I - n⊗n)
+    dt/du = -(-dp/dg) (n - μ φ) ⊗ n  -  μ p Dφ (I - n⊗n),   -dp/dg = ε_N H(-g) unsmoothed
 with φ = Δs_T/δ and Dφ = I/δ (stick), φ = Δs_T/s and Dφ = (I - e⊗e)/s, e = Δs_T/s (slip).
 The friction part is not symmetric (the term μ ε_N φ ⊗ n).
 
@@ -28,6 +36,7 @@ The finite-element layer adds ∫ t·δu dA to the external virtual work and
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -42,6 +51,8 @@ DEFAULT_FRICTION = 0.2
 DEFAULT_SLIP_REGULARISATION = 0.05
 #: c in ε_N = c K / h² (docs/tools.md, "Penalty").
 DEFAULT_PENALTY_FACTOR = 1.0
+#: g0 / h of the smoothed penalty (docs/forming.md, "Contact").
+DEFAULT_SMOOTHING_FACTOR = 0.05
 
 SEPARATED, STICK, SLIP = 0, 1, 2
 
@@ -60,6 +71,16 @@ class ContactParameters:
     slip_regularisation: float = setting(DEFAULT_SLIP_REGULARISATION, "slip δ over which "
                                          "friction builds up to μ p (the stick zone)", positive,
                                          "mm")
+    smoothing: float | None = setting(None, "g0 of the C1 penalty: the gap at which the tool "
+                                      "starts to push (0: the plain penalty); unset: "
+                                      f"{DEFAULT_SMOOTHING_FACTOR:g} times the blank's element "
+                                      "size", non_negative, "mm")
+
+    def smoothing_for(self, element_size: float) -> float:
+        """g0 (mm): the configured smoothing, or the default fraction of the element size."""
+        if self.smoothing is not None:
+            return self.smoothing
+        return DEFAULT_SMOOTHING_FACTOR * element_size
 
     def penalty_for(self, yarn_stiffness: float, element_size: float) -> float:
         """ε_N: the configured penalty, or the proposed one for this fabric and mesh."""
@@ -94,15 +115,40 @@ class ContactResponse(NamedTuple):
     state: np.ndarray
 
 
+def normal_pressure(gap, penalty, smoothing=0.0):
+    """Contact pressure p(g) (N/mm²) and its stiffness -dp/dg (N/mm³) at N points: the plain
+    penalty for ``smoothing`` g0 = 0, else the C1 law of the module docstring."""
+    g = np.asarray(gap, dtype=float)
+    eps, g0 = penalty, smoothing
+    if g0 <= 0.0:
+        return np.where(g < 0.0, -eps * g, 0.0), np.where(g < 0.0, eps, 0.0)
+    near = (g >= 0.0) & (g < g0)
+    p = np.where(g < 0.0, eps * (0.5 * g0 - g),
+                 np.where(near, eps * (g0 - g) ** 2 / (2.0 * g0), 0.0))
+    stiffness = np.where(g < 0.0, eps, np.where(near, eps * (g0 - g) / g0, 0.0))
+    return p, stiffness
+
+
+def gap_for_pressure(pressure: float, penalty: float, smoothing: float = 0.0) -> float:
+    """The gap g (mm) at which :func:`normal_pressure` is the pressure p > 0 (its inverse)."""
+    p, eps, g0 = float(pressure), float(penalty), float(smoothing)
+    if p <= 0.0:
+        raise ValueError(f"the pressure must be positive, not {p}")
+    if g0 <= 0.0 or p >= 0.5 * eps * g0:
+        return 0.5 * g0 - p / eps
+    return g0 - math.sqrt(2.0 * g0 * p / eps)
+
+
 def traction(gap, normal, slip_increment, penalty, friction=DEFAULT_FRICTION,
-             regularisation=DEFAULT_SLIP_REGULARISATION, touching_is_active=False) -> ContactResponse:
+             regularisation=DEFAULT_SLIP_REGULARISATION, touching_is_active=False,
+             smoothing=0.0) -> ContactResponse:
     """The penalty normal law with regularised Coulomb friction at N points (module docstring).
 
     gap (N,) mm; normal (N, 3) unit; slip_increment (N, 3) mm; penalty ε_N (N/mm³), friction μ
-    and regularisation δ (mm): scalars or arrays of N. ``touching_is_active``: at g = 0 exactly
-    (fabric lying on a tool, as at the start of a forming job) the tangent is the one-sided one
-    of the contact side (ε_N n⊗n), so that Newton's first iteration sees the support; the
-    traction there is 0 either way."""
+    and regularisation δ (mm): scalars or arrays of N; ``smoothing`` g0 (mm) selects the C1
+    penalty. ``touching_is_active`` (plain penalty only): at g = 0 exactly (fabric lying on a
+    tool) the tangent is the one-sided one of the contact side (ε_N n⊗n), so that Newton's
+    first iteration sees the support; the traction there is 0 either way."""
     g = np.asarray(gap, dtype=float)
     n = np.asarray(normal, dtype=float)
     ds = np.asarray(slip_increment, dtype=float)
@@ -112,28 +158,15 @@ def traction(gap, normal, slip_increment, penalty, friction=DEFAULT_FRICTION,
     if n.shape != g.shape + (3,) or ds.shape != n.shape:
         raise ValueError(f"expected gap (N,), normal and slip (N, 3); got {g.shape}, {n.shape}, "
                          f"{ds.shape}")
-    contact = g < 0.0
-    p = np.where(contact, -eps * g, 0.0)
+    p, stiffness = normal_pressure(g, eps, smoothing)
+    contact = p > 0.0
+    if smoothing <= 0.0 and touching_is_active:
+        stiffness = np.where(g <= 0.0, eps, 0.0)
     t, friction_tangent, phi, slip = _friction(p, n, ds, mu, delta)
-    # normal part of the tangent: dp/du = -eps H(-g) n, acting on (n - mu phi)
-    active = np.where((g <= 0.0) if touching_is_active else contact, eps, 0.0)
+    # normal part of the tangent: dp/du = -(-dp/dg) n, acting on (n - mu phi)
+    active = stiffness
     tangent = friction_tangent - active[:, None, None] * (n - mu[:, None] * phi)[:, :, None] * n[:, None, :]
     state = np.where(~contact, SEPARATED, np.where(slip, SLIP, STICK))
-    return ContactResponse(t, tangent, p, state)
-
-
-def pressure_traction(pressure, normal, slip_increment, friction=DEFAULT_FRICTION,
-                      regularisation=DEFAULT_SLIP_REGULARISATION) -> ContactResponse:
-    """A prescribed pressure p (N,) [N/mm²] pushing along ``normal`` with the same regularised
-    Coulomb friction as :func:`traction` (a force-controlled tool: the pressure does not depend
-    on the displacement, so the tangent has the friction part only)."""
-    p = np.asarray(pressure, dtype=float)
-    n = np.asarray(normal, dtype=float)
-    ds = np.asarray(slip_increment, dtype=float)
-    mu = np.broadcast_to(np.asarray(friction, dtype=float), p.shape)
-    delta = np.broadcast_to(np.asarray(regularisation, dtype=float), p.shape)
-    t, tangent, _, slip = _friction(p, n, ds, mu, delta)
-    state = np.where(p <= 0.0, SEPARATED, np.where(slip, SLIP, STICK))
     return ContactResponse(t, tangent, p, state)
 
 
