@@ -35,7 +35,7 @@ CHECKPOINT_FILE = "checkpoint.npz"
 #: a copy of fields.xdmf taken with each checkpoint (dolfinx rewrites the XDMF text in place
 #: after every step: a hard kill at that moment leaves it empty)
 XDMF_COPY = "checkpoint.xdmf"
-VERSION = 1
+VERSION = 2
 #: config keys a resume may change (they do not change the numbers)
 FREE_KEYS = ("title", "material", "output.folder", "output.checkpoint_every")
 
@@ -133,6 +133,9 @@ class Checkpoints:
         p = self.problem
         state = {"node_xyz": p.V.tabulate_dof_coordinates(),
                  "u": p.u_committed.x.array.copy(),
+                 "u_previous": p.u_previous.x.array.copy(),
+                 "t_steps": np.array([p.t_committed, np.nan if p.t_previous is None
+                                      else p.t_previous]),
                  "gamma_p": p.gamma_p.x.array.copy(),
                  "gamma_max": p.gamma_max.x.array.copy(),
                  "centres": np.array([c.x.array for c in p.centres]).reshape(len(p.centres), -1),
@@ -168,6 +171,9 @@ class Checkpoints:
                              "interrupted run; or --overwrite to start over")
         p.u.x.array[:] = local["u"]
         p.u_committed.x.array[:] = local["u"]
+        p.u_previous.x.array[:] = local["u_previous"]
+        p.t_committed = float(local["t_steps"][0])
+        p.t_previous = None if np.isnan(local["t_steps"][1]) else float(local["t_steps"][1])
         p.gamma_p.x.array[:] = local["gamma_p"]
         p.gamma_max.x.array[:] = local["gamma_max"]
         for k, centre in enumerate(p.centres):

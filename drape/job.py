@@ -107,6 +107,27 @@ class RegularisationConfig:
         "is then singular)", non_negative, "N/mm^3")
 
 
+#: bending rigidity B (N mm) of a forming job whose config does not set it (docs/forming.md,
+#: "Bending": of the order measured on dry woven reinforcements)
+DEFAULT_FORMING_BENDING = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class BendingConfig:
+    """The fabric's bending rigidity: not part of the paper's in-plane law, a hinge energy
+    across the element edges (drape/membrane.py). A flat blank has no bending energy."""
+
+    rigidity: float | None = setting(
+        None, "bending rigidity B, moment per unit width per unit curvature; unset: 0 for a "
+        f"flat job, {DEFAULT_FORMING_BENDING:g} for a forming job (a membrane without bending "
+        "has no stiffness against wrinkling: docs/forming.md)", non_negative, "N mm")
+
+    def value(self, forming: bool) -> float:
+        if self.rigidity is not None:
+            return self.rigidity
+        return DEFAULT_FORMING_BENDING if forming else 0.0
+
+
 @dataclasses.dataclass(frozen=True)
 class HistoryConfig:
     """A piecewise-linear function of the load factor, named in boundary formulas."""
@@ -180,8 +201,9 @@ class ProcessConfig:
 
     stroke: float | None = setting(None, "punch travel (default: the tools' full stroke)",
                                    positive, "mm")
-    holder_force: float = setting(200.0, "total blank-holder force, spread as a uniform pressure "
-                                  "over the blank under the holder's flat face", non_negative, "N")
+    holder_force: float = setting(200.0, "total blank-holder force: the rigid holder's height "
+                                  "is controlled to press the flange with it (0: no holder)",
+                                  non_negative, "N")
     locking_angle: float = setting(40.0, "shear angle above which the fabric is reported as "
                                    "locked (summary.json, maps)", in_range(0.0, 90.0, lo_open=True,
                                                                            hi_open=True), "deg")
@@ -204,6 +226,7 @@ class JobConfig:
     steps: StepsConfig = setting(StepsConfig(), "load stepping")
     solver: SolverConfig = setting(SolverConfig(), "Newton and linear solver")
     regularisation: RegularisationConfig = setting(RegularisationConfig(), "flat-membrane regularisation")
+    bending: BendingConfig = setting(BendingConfig(), "the fabric's bending rigidity")
     history: dict[str, HistoryConfig] = setting({}, "named piecewise-linear histories of t")
     boundary: tuple[BoundaryConfig, ...] = setting((), "prescribed displacements ([[boundary]])")
     output: OutputConfig = setting(OutputConfig(), "results")

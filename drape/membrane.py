@@ -11,9 +11,19 @@ thickness-integrated PK2 stress (N/mm)
 
     S = S11 G1 G1 + S22 G2 G2 + tau/2 (G1 G2 + G2 G1),   S11 = mu K1 E11, S22 = mu K2 E22.
 
-The residual is the internal virtual work minus external point forces plus the regularisation:
+The residual is the internal virtual work minus external point forces plus the regularisation
+and, when the fabric's bending rigidity B (N mm) is set, the variation of a bending energy:
 
-    R(u; v) = int S : sym(F^T grad v) dA + int k (u_z - u_z,last) v_z dA - sum_c int f_c . v dA.
+    R(u; v) = int S : sym(F^T grad v) dA + int k (u_z - u_z,last) v_z dA - sum_c int f_c . v dA
+              + d/du W_b(u; v),
+    W_b = sum over interior edges e of int_e B / (2 h) |n+ - n-|^2 ds,
+
+n the unit normal of the deformed surface (F e1 x F e2 normalised) on either side of the edge
+and h the element size there: each edge is a hinge whose energy B theta^2 L / (2 h) is the
+plate energy B kappa^2 / 2 of a curvature kappa = theta / h spread over the strip of width h
+(a discrete-shell bending model). It vanishes on a flat or rigidly moved blank, so it changes
+nothing in the flat jobs; in forming it gives the membrane the bending stiffness a real fabric
+has (docs/forming.md, "Bending").
 
 S11 and S22 are written in UFL; tau and its consistent tangent d tau / d C12 come from the numpy
 law at the quadrature points. Every residual evaluation computes the yarn-frame C at the
@@ -80,7 +90,8 @@ class MembraneProblem:
     """Spaces, state, forms and the SNES callbacks of the membrane on a :class:`BlankMesh`."""
 
     def __init__(self, blank_mesh, law, yarn_angle_deg: float, damping: float,
-                 contributions: list[PointContribution] | None = None, jit_params: dict | None = None):
+                 contributions: list[PointContribution] | None = None, jit_params: dict | None = None,
+                 bending_rigidity: float = 0.0):
         import basix
         import ufl
         from dolfinx import fem
@@ -108,6 +119,10 @@ class MembraneProblem:
         self.V = fem.VectorFunctionSpace(msh, ("CG", 1), dim=3)
         self.u = fem.Function(self.V, name="displacement")
         self.u_committed = fem.Function(self.V, name="committed_displacement")
+        #: the converged step before the committed one, and both load factors (a predictor
+        #: extrapolates from them; None before two steps have converged)
+        self.u_previous = fem.Function(self.V, name="previous_displacement")
+        self.t_committed, self.t_previous = 0.0, None
         q_element = ufl.FiniteElement("Quadrature", msh.ufl_cell(), self.degree, quad_scheme="default")
         self.Q = fem.FunctionSpace(msh, q_element)
         self.qdofs = self.Q.dofmap.list.array.reshape(-1, nq)[: self.n_cells].ravel()
@@ -149,6 +164,15 @@ class MembraneProblem:
         jacobian += k * du[2] * v[2] * dx_extra
         regularisation_work = 0.5 * k * (u[2] - self.u_committed[2]) ** 2 * dx_extra
 
+        # --- bending: hinges across the interior edges (module docstring)
+        self.bending_rigidity = float(bending_rigidity)
+        bending_energy = None
+        if self.bending_rigidity > 0.0:
+            bending_energy = self._bending_energy(F, jit)
+            bending_residual = ufl.derivative(bending_energy, u, v)
+            residual += bending_residual
+            jacobian += ufl.derivative(bending_residual, u, du)
+
         # --- point contributions: quadrature functions written before every assembly
         self.extra_points, self.extra_weights = basix.make_quadrature(basix_cell, CONTRIBUTION_DEGREE)
         n_extra = len(self.extra_weights)
@@ -178,6 +202,8 @@ class MembraneProblem:
         self.jacobian_form = fem.form(jacobian, jit_params=jit)
         self.internal_form = fem.form(internal, jit_params=jit)
         self.regularisation_work_form = fem.form(regularisation_work, jit_params=jit)
+        self.bending_energy_form = (fem.form(bending_energy, jit_params=jit)
+                                    if bending_energy is not None else None)
 
         # --- values at the law's points: C in the yarn frame; deformed yarn directions (output)
         self._yarn_C = fem.Expression(ufl.as_vector([C11, C22, C12]), self.points, jit_params=jit)
@@ -198,6 +224,29 @@ class MembraneProblem:
         #: a contribution's name), on this rank; the solver gathers it after each solve
         self.nonfinite: set[str] = set()
         self._finite = True
+
+    def _bending_energy(self, F, jit):
+        """W_b (N mm) as a UFL form over the interior facets; h per cell (a DG0 function): the
+        edge length of a yarn-aligned element, sqrt(area) on quadrilaterals, sqrt(2 area) on
+        triangles (the legs of the right triangles)."""
+        import basix
+        import ufl
+        from dolfinx import fem
+        msh = self.mesh
+        cell_name = msh.topology.cell_type.name
+        points, weights = basix.make_quadrature(getattr(basix.CellType, cell_name), 1)
+        detJ = fem.Expression(ufl.JacobianDeterminant(msh), points, jit_params=jit)
+        n_all = msh.topology.index_map(2).size_local + msh.topology.index_map(2).num_ghosts
+        area = np.abs(detJ.eval(np.arange(n_all, dtype=np.int32))).reshape(n_all, -1) @ weights
+        D0 = fem.FunctionSpace(msh, ("DG", 0))
+        self.cell_size = fem.Function(D0, name="cell_size")
+        dofs = D0.dofmap.list.array.reshape(-1)[:n_all]    # one dof per cell, in cell order
+        self.cell_size.x.array[dofs] = np.sqrt(area * (2.0 if cell_name == "triangle" else 1.0))
+        a3 = ufl.cross(F[:, 0], F[:, 1])
+        normal = a3 / ufl.sqrt(ufl.dot(a3, a3))
+        h = 0.5 * (self.cell_size("+") + self.cell_size("-"))
+        dS = ufl.dS(domain=msh, metadata={"quadrature_degree": 2})
+        return self.bending_rigidity / (2.0 * h) * ufl.inner(ufl.jump(normal), ufl.jump(normal)) * dS
 
     # --- the law at the quadrature points ------------------------------------------------------
     def committed_state(self):
@@ -292,14 +341,18 @@ class MembraneProblem:
         return fpetsc.create_matrix(self.jacobian_form)
 
     # --- steps ------------------------------------------------------------------------------------
-    def commit(self) -> None:
-        """Make the converged step the committed state (law, displacement, contributions)."""
+    def commit(self, t: float | None = None) -> None:
+        """Make the converged step (at load factor t) the committed state (law, displacement,
+        contributions); the committed displacement becomes the previous one."""
         self._ensure_evaluated()
         trial, q = self.response.trial, self.qdofs
         self.gamma_p.x.array[q] = trial.gamma_p
         self.gamma_max.x.array[q] = trial.gamma_max_deg
         for k, centre in enumerate(self.centres):
             centre.x.array[q] = trial.centres[k]
+        if t is not None:
+            self.u_previous.x.array[:] = self.u_committed.x.array
+            self.t_previous, self.t_committed = self.t_committed, float(t)
         self.u_committed.x.array[:] = self.u.x.array
         for contribution in self.contributions:
             contribution.commit()
@@ -323,6 +376,13 @@ class MembraneProblem:
         """Work of the damping over the current step, 1/2 k int (u_z - u_z,last)^2 dA (N mm)."""
         from dolfinx import fem
         return self.comm.allreduce(fem.assemble_scalar(self.regularisation_work_form))
+
+    def bending_energy(self) -> float:
+        """The bending energy W_b of the current displacement (N mm; 0 without bending)."""
+        from dolfinx import fem
+        if self.bending_energy_form is None:
+            return 0.0
+        return self.comm.allreduce(fem.assemble_scalar(self.bending_energy_form))
 
     def cell_average(self, values: np.ndarray) -> np.ndarray:
         """Area-weighted average over each local cell of values at the law's points,

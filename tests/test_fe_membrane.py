@@ -16,13 +16,14 @@ from drape.membrane import PointContribution
 
 
 def _problem(comm, cell="quadrilateral", yarn_angle=0.0, pattern="aligned", contributions=None,
-             damping=1e-3):
+             damping=1e-3, bending=0.0, size=10.0, length=40.0, width=30.0):
     from drape.membrane import MembraneProblem
     from drape.mesh import create_blank_mesh
-    blank = BlankConfig(length=40.0, width=30.0, yarn_angle=yarn_angle)
-    bm = create_blank_mesh(comm, blank, MeshConfig(cell=cell, pattern=pattern, size=10.0))
+    blank = BlankConfig(length=length, width=width, yarn_angle=yarn_angle)
+    bm = create_blank_mesh(comm, blank, MeshConfig(cell=cell, pattern=pattern, size=size))
     law = NestedSurfaceLaw(MaterialParameters())
-    return MembraneProblem(bm, law, yarn_angle, damping, contributions=contributions)
+    return MembraneProblem(bm, law, yarn_angle, damping, contributions=contributions,
+                           bending_rigidity=bending)
 
 
 def _set_displacement(problem, shear_deg=15.0):
@@ -53,10 +54,11 @@ def _jacobian_action(problem, x, direction):
     return out
 
 
-@pytest.mark.parametrize("cell, yarn_angle, pattern", [("quadrilateral", 0.0, "aligned"),
-                                                       ("triangle", 30.0, "free")])
-def test_jacobian_is_the_derivative_of_the_residual(comm, cell, yarn_angle, pattern):
-    problem = _problem(comm, cell, yarn_angle, pattern)
+@pytest.mark.parametrize("cell, yarn_angle, pattern, bending", [
+    ("quadrilateral", 0.0, "aligned", 0.0), ("triangle", 30.0, "free", 0.0),
+    ("quadrilateral", 0.0, "aligned", 2.0), ("triangle", 30.0, "free", 2.0)])
+def test_jacobian_is_the_derivative_of_the_residual(comm, cell, yarn_angle, pattern, bending):
+    problem = _problem(comm, cell, yarn_angle, pattern, bending=bending)
     _set_displacement(problem)
     x = problem.u.vector.copy()
     rng = np.random.default_rng(comm.rank + 7)
@@ -197,3 +199,54 @@ def test_regularisation_work_is_reported_and_its_effect_shrinks_with_the_damping
     if comm.rank == 0:
         assert deviation[1e-3] < 0.2 * deviation[1e-1]
         assert deviation[1e-3] < 1.0     # mm, on a 100 mm strip
+
+
+def _bend_into_cylinder(problem, radius, angle_deg=0.0):
+    """u such that the blank, turned by angle_deg about z, wraps a cylinder of radius R whose
+    axis is along the turned y axis; then turned back: x = R sin(s/R), z = R (1 - cos(s/R))."""
+    a = math.radians(angle_deg)
+    c, sn = math.cos(a), math.sin(a)
+
+    def field(x):
+        s_ = c * x[0] + sn * x[1]                # arc length across the cylinder's axis
+        t_ = -sn * x[0] + c * x[1]               # along the axis
+        xs, zs = radius * np.sin(s_ / radius), radius * (1 - np.cos(s_ / radius))
+        return np.vstack([c * xs - sn * t_ - x[0], sn * xs + c * t_ - x[1], zs])
+    problem.u.interpolate(field)
+    problem.u.x.scatter_forward()
+
+
+@pytest.mark.parametrize("cell", ["quadrilateral", "triangle"])
+def test_bending_energy_of_a_cylinder_is_the_plate_energy(comm, cell):
+    """Wrapped (without stretching) around a cylinder of radius R across the x yarns, an aligned
+    mesh of size h has flat elements, and each of its Nx - 1 interior edges along y is a hinge of
+    angle h / R: W_b = (Nx - 1) B / (2 h) (2 sin(h / 2R))^2 L_y exactly, which tends to the
+    plate's B / (2 R^2) times the area but for the boundary strip (relative h / L_x). A flat
+    blank moved rigidly (turned and lifted) has none, and no bending residual."""
+    B, R, Lx, Ly = 1.5, 40.0, 40.0, 30.0
+    for size in (5.0, 2.5):
+        problem = _problem(comm, cell, bending=B, size=size, damping=0.0)
+        _bend_into_cylinder(problem, R)
+        n_x = round(Lx / size)
+        hinges = (n_x - 1) * B / (2 * size) * (2 * math.sin(size / (2 * R))) ** 2 * Ly
+        plate = 0.5 * B / R ** 2 * (Lx - size) * Ly
+        energy = problem.bending_energy()
+        print(f"h = {size}: W_b = {energy:.6g}, hinges {hinges:.6g}, plate {plate:.6g} N mm")
+        assert energy == pytest.approx(hinges, rel=1e-9)
+        assert energy == pytest.approx(plate, rel=(size / R) ** 2)
+    problem = _problem(comm, cell, bending=B, size=5.0, damping=0.0)
+    th = math.radians(35.0)
+    rotation = np.array([[1, 0, 0], [0, math.cos(th), -math.sin(th)], [0, math.sin(th), math.cos(th)]])
+    problem.u.interpolate(lambda x: (rotation @ x) - x + np.array([[3.0], [-2.0], [5.0]]))
+    problem.u.x.scatter_forward()
+    assert abs(problem.bending_energy()) < 1e-12
+    with_bending = _residual(problem, problem.u.vector)
+    without = _residual(_moved_like(problem, comm, cell), problem.u.vector)
+    with_bending.axpy(-1.0, without)
+    assert with_bending.norm() < 1e-10
+
+
+def _moved_like(problem, comm, cell):
+    other = _problem(comm, cell, bending=0.0, size=5.0, damping=0.0)
+    other.u.x.array[:] = problem.u.x.array
+    return other
