@@ -12,13 +12,14 @@ face and the holder's lower face are (``tools.*.gap`` = 0).
   surfaces of revolution, an exact closest point on the gmsh triangulation otherwise) queried at
   the membrane's quadrature points from their current positions; :func:`drape.contact.traction`
   gives traction and tangent. The punch moves by (0, 0, -stroke * t).
-* The blank holder is force-controlled: its total force F (N) is a uniform pressure
-  p = F / A on the part of the blank under the holder's flat face (area A, reference), pushing
-  it onto the die, with the same friction law (:func:`drape.contact.pressure_traction`). The
-  part under the holder is decided from the positions of the last converged step (so p is
-  constant within a load step). A membrane has no thickness: the holder's position is the die's
-  top face, and a force-controlled holder is exactly this pressure. STEP tool sets have no
-  known flat face: their holder is a rigid surface in contact like the die.
+* The blank holder is a rigid tool too, force-controlled: a membrane has no thickness, so the
+  holder pinches the flange against the die, both in smoothed penalty contact
+  (:func:`drape.contact.normal_pressure`); its height is set so that the pinched flange carries
+  the pressure F / A (A the blank's reference area under the holder's flat face), and after
+  every converged step it is corrected by the measured holder force (:class:`HolderControl`),
+  as a press's cushion does. Unlike a prescribed pressure, a rigid holder keeps the flange from
+  wrinkling under it. STEP tool sets have no known flat face: their holder is a rigid surface
+  at its given position (position-controlled).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drape.contact import pressure_traction, traction
+from drape.contact import gap_for_pressure, traction
 from drape.errors import InputError
 from drape.membrane import PointContribution
 
@@ -155,18 +156,20 @@ def holder_region(config):
 # --- point contributions ---------------------------------------------------------------------------
 
 class ToolContact(PointContribution):
-    """Rigid tools in penalty contact with friction; the tools named in ``moving`` translate by
-    (0, 0, -stroke(t))."""
+    """Rigid tools in (smoothed) penalty contact with friction; the tools named in ``moving``
+    translate by (0, 0, -stroke(t)); the holder, when ``holder_control`` (a
+    :class:`HolderControl`) is set, is lowered by what it says (changed between steps only)."""
 
     name = "tools"
 
     def __init__(self, surfaces: dict, moving: set, stroke: float, penalty: float,
-                 friction: float, regularisation: float, cutoff: float):
+                 friction: float, regularisation: float, cutoff: float, smoothing: float = 0.0):
         self.surfaces = surfaces
         self.moving = set(moving)
         self.stroke = float(stroke)
         self.penalty, self.friction, self.regularisation = penalty, friction, regularisation
-        self.cutoff = cutoff
+        self.cutoff, self.smoothing = cutoff, float(smoothing)
+        self.holder_control = None
         self.offsets = {name: np.zeros(3) for name in surfaces}
         self.committed_offsets = dict(self.offsets)
         self.last = {}
@@ -178,8 +181,10 @@ class ToolContact(PointContribution):
 
     def set_load(self, t: float) -> None:
         for name in self.surfaces:
-            self.offsets[name] = np.array([0.0, 0.0, -self.stroke * t]) if name in self.moving \
-                else np.zeros(3)
+            down = self.stroke * t if name in self.moving else 0.0
+            if name == "holder" and self.holder_control is not None:
+                down += self.holder_control.lowering()
+            self.offsets[name] = np.array([0.0, 0.0, -down])
 
     def evaluate(self, positions, displacements):
         f = np.zeros_like(positions)
@@ -190,7 +195,8 @@ class ToolContact(PointContribution):
             query = surface.query(positions, offset, cutoff=self.cutoff)
             slip = displacements - self.committed_u - (offset - self.committed_offsets[name])
             response = traction(query.gap, query.normal, slip, self.penalty, self.friction,
-                                self.regularisation, touching_is_active=True)
+                                self.regularisation, touching_is_active=True,
+                                smoothing=self.smoothing)
             f += response.traction
             K -= response.tangent
             self.last[name] = (query.gap, response)
@@ -202,70 +208,49 @@ class ToolContact(PointContribution):
         self.committed_offsets = {k: v.copy() for k, v in self.offsets.items()}
 
     def state(self) -> dict:
-        return {"committed_u": self.committed_u,
-                **{f"offset_{k}": v for k, v in self.committed_offsets.items()}}
+        state = {"committed_u": self.committed_u,
+                 **{f"offset_{k}": v for k, v in self.committed_offsets.items()}}
+        if self.holder_control is not None:
+            state["holder_target"] = np.array(self.holder_control.target)
+        return state
 
     def load_state(self, state: dict) -> None:
         self.committed_u = np.array(state["committed_u"], copy=True)
         self._u = self.committed_u
         for k in self.committed_offsets:
             self.committed_offsets[k] = np.array(state[f"offset_{k}"], copy=True)
+        if self.holder_control is not None:
+            self.holder_control.target = float(state["holder_target"])
 
 
-class HolderPressure(PointContribution):
-    """The force-controlled blank holder: pressure F / A pushing down (-z) on the points under
-    its flat face (decided at the last converged step), with regularised Coulomb friction
-    against the fixed holder."""
+class HolderControl:
+    """Force control of the rigid holder: its height for a total force F (N).
 
-    name = "holder"
-    NORMAL = np.array([0.0, 0.0, -1.0])
+    The flange of reference area A (under the holder's flat face) pinched between the die
+    (top at z = 0) and the holder (bottom at z = -d) settles midway, at a gap -d/2 from each,
+    where both push with the pressure p(-d/2) of the smoothed penalty; so d = -2 g(F' / A) with
+    g the inverse of the penalty law (:func:`drape.contact.gap_for_pressure`). F' starts at F
+    and after every converged step moves by half the difference between F and the measured
+    holder force (fabric thicker than flat where it wrinkles or bunches, the flange leaving the
+    flat face), which brings the measured force to F within a few steps."""
 
-    def __init__(self, region, force: float, friction: float, regularisation: float):
-        self.region, self.force = region, float(force)
-        self.friction, self.regularisation = friction, regularisation
-        self.areas = None       # reference area per point (mm^2), set by Forming.bind
-        self.comm = None
-        self.last = None
+    GAIN = 0.5
 
-    def setup(self, reference_points):
-        super().setup(reference_points)
-        n = len(reference_points)
-        self.committed_u = np.zeros((n, 3))
-        self._u = self.committed_u
-        self._x = np.column_stack([reference_points, np.zeros(n)])
-        self.mask = None
+    def __init__(self, force: float, area: float, penalty: float, smoothing: float):
+        if area <= 0.0:
+            raise InputError("no blank under the blank holder", key="process.holder_force",
+                             value=force, expected="a blank reaching under the holder's flat "
+                             "face, or holder_force = 0")
+        self.force, self.area, self.penalty, self.smoothing = force, area, penalty, smoothing
+        self.target = force
 
-    def _update_pressure(self) -> None:
-        self.mask = self.region(self._x)
-        area = self.comm.allreduce(float(self.areas[self.mask].sum()))
-        self.area = area
-        self.pressure = self.force / area if area > 0 else 0.0
+    def lowering(self) -> float:
+        """d (mm): how far below the die's top face the holder's face is (negative: above)."""
+        p = max(self.target, 1e-3 * self.force) / self.area
+        return -2.0 * gap_for_pressure(p, self.penalty, self.smoothing)
 
-    def evaluate(self, positions, displacements):
-        if self.mask is None:
-            self._update_pressure()
-        n = len(positions)
-        p = np.where(self.mask, self.pressure, 0.0)
-        slip = displacements - self.committed_u
-        response = pressure_traction(p, np.broadcast_to(self.NORMAL, (n, 3)), slip,
-                                     self.friction, self.regularisation)
-        self._u, self._x_trial = displacements, positions
-        self.last = response
-        return response.traction, -response.tangent
-
-    def commit(self) -> None:
-        self.committed_u = np.array(self._u, copy=True)
-        self._x = np.array(self._x_trial, copy=True)
-        self._update_pressure()
-
-    def state(self) -> dict:
-        return {"committed_u": self.committed_u, "x": self._x}
-
-    def load_state(self, state: dict) -> None:
-        self.committed_u = np.array(state["committed_u"], copy=True)
-        self._u = self.committed_u
-        self._x = np.array(state["x"], copy=True)
-        self._update_pressure()
+    def update(self, measured: float) -> None:
+        self.target = max(0.0, self.target + self.GAIN * (self.force - measured))
 
 
 # --- the forming job -------------------------------------------------------------------------------
@@ -295,26 +280,26 @@ class Forming:
             self.tool_description = (f"{tools.kind} tools meshed by gmsh (" + ", ".join(
                 f"{name} {s.n_triangles} triangles" for name, s in surfaces.items())
                 + f", {time.perf_counter() - started:.1f} s)")
-        region = holder_region(config)
-        contact_tools = {name: s for name, s in surfaces.items()
-                         if name != "holder" or region is None}
+        self.holder_region = holder_region(config)
+        force_controlled = self.holder_region is not None
+        if force_controlled and self.process.holder_force == 0:
+            surfaces = {name: s for name, s in surfaces.items() if name != "holder"}
         params = job.params
         h = config.mesh.size
         contact = config.contact
         self.penalty = contact.penalty_for(params.mu * max(params.K1, params.K2), h)
-        self.tool_contact = ToolContact(contact_tools, {"punch"}, self.stroke, self.penalty,
+        self.smoothing = contact.smoothing_for(h)
+        self.tool_contact = ToolContact(surfaces, {"punch"}, self.stroke, self.penalty,
                                         contact.friction, contact.slip_regularisation,
-                                        self.process.contact_cutoff)
+                                        self.process.contact_cutoff, self.smoothing)
         self.contributions = [self.tool_contact]
+        #: force control of the holder (None: no holder, or a position-controlled STEP one)
         self.holder = None
-        if region is not None and self.process.holder_force > 0:
-            self.holder = HolderPressure(region, self.process.holder_force, contact.friction,
-                                         contact.slip_regularisation)
-            self.contributions.append(self.holder)
+        self._holder_force_controlled = force_controlled and "holder" in surfaces
         self.force_rows = []
         say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, holder force "
-            f"{self.process.holder_force:g} N, penalty {self.penalty:.4g} N/mm^3, friction "
-            f"{contact.friction:g}")
+            f"{self.process.holder_force:g} N, penalty {self.penalty:.4g} N/mm^3 (smoothed over "
+            f"{self.smoothing:.3g} mm), friction {contact.friction:g}")
 
     # --- wiring ---------------------------------------------------------------------------------------
     def bind(self, problem) -> None:
@@ -324,11 +309,15 @@ class Forming:
         detJ = fem.Expression(ufl.JacobianDeterminant(problem.mesh), problem.extra_points)
         areas = np.abs(detJ.eval(problem.cells)).reshape(problem.n_cells, -1) * problem.extra_weights
         self.problem = problem
-        self._committed = []
         self.areas = areas.ravel()
         self.n_extra = areas.shape[1]
-        if self.holder is not None:
-            self.holder.areas, self.holder.comm = self.areas, self.comm
+        if self._holder_force_controlled:
+            reference = np.column_stack([self.tool_contact.reference_points,
+                                         np.zeros(self.areas.size)])
+            area = self.comm.allreduce(float(self.areas[self.holder_region(reference)].sum()))
+            self.holder = HolderControl(self.process.holder_force, area, self.penalty,
+                                        self.smoothing)
+            self.tool_contact.holder_control = self.holder
 
     def set_load(self, t: float) -> None:
         self.tool_contact.set_load(t)
@@ -337,45 +326,48 @@ class Forming:
         """Start Newton from the last two converged steps extrapolated linearly to t, not from
         the last one: the punch has moved on, and the fabric in contact with it with it
         (without this, a step needs 15-25 Newton iterations instead of a handful)."""
-        if len(self._committed) < 2:
+        p = self.problem
+        t1, t0 = p.t_committed, p.t_previous
+        if t0 is None or t1 <= t0:
             return
-        (t0, u0), (t1, u1) = self._committed[-2:]
-        if t1 <= t0:
-            return
-        u = self.problem.u
-        u.x.array[:] = u1 + (t - t1) / (t1 - t0) * (u1 - u0)
-
-    def committed(self, t: float) -> None:
-        """Remember the converged displacement at load factor t (for :meth:`predict`)."""
-        self._committed = (self._committed + [(t, self.problem.u.x.array.copy())])[-2:]
+        u1, u0 = p.u_committed.x.array, p.u_previous.x.array
+        p.u.x.array[:] = u1 + (t - t1) / (t1 - t0) * (u1 - u0)
 
     # --- per step ---------------------------------------------------------------------------------------
-    def measure(self, t: float) -> dict:
-        """Forces (N), penetration (mm), contact areas (mm^2) at the converged state (collective)."""
+    def measure(self, t: float, converged: bool = True) -> dict:
+        """Forces (N), penetration (mm), contact areas (mm^2) at the converged state (collective).
+
+        ``converged`` False (step 0, the flat blank as meshed): every force and area is 0. The
+        smoothed penalty pushes from g0 off a tool's surface, so the blank meshed on the die is
+        not yet in equilibrium; the first step lifts it by about g0."""
         from mpi4py import MPI
         comm, A = self.comm, self.areas
         row = {"stroke": self.stroke * t}
         penetration = 0.0
         for name, (gap, response) in self.tool_contact.last.items():
-            force = response.traction.T @ A
-            force = comm.allreduce(force)
-            row[f"{name}_force"] = -force[2] if name == "punch" else force[2]
-            row[f"{name}_contact_area"] = comm.allreduce(float(A[gap < 0].sum()))
-            penetration = max(penetration, float(-gap.min()) if gap.size else 0.0)
-        if self.holder is not None and self.holder.last is not None:
-            row["holder_force"] = -comm.allreduce(float(self.holder.last.traction[:, 2] @ A))
-            row["holder_area"] = self.holder.area
+            force = comm.allreduce(response.traction.T @ A) * converged
+            # punch and holder press down, the die up: each force positive in its own direction
+            row[f"{name}_force"] = force[2] if name == "die" else -force[2]
+            row[f"{name}_contact_area"] = comm.allreduce(
+                float(A[response.pressure > 0].sum())) * converged
+            penetration = max(penetration, float(-gap.min()) if gap.size and converged else 0.0)
         row["max_penetration"] = comm.allreduce(max(penetration, 0.0), op=MPI.MAX)
+        if self.holder is not None:
+            row["holder_lowering"] = self.holder.lowering()
         self.force_rows.append(row)
         return row
+
+    def control_holder(self, row: dict) -> None:
+        """After a converged step (not the initial state): correct the holder's height for the
+        next step from the force it measured (:class:`HolderControl`)."""
+        if self.holder is not None and row["t"] > 0:
+            self.holder.update(row["holder_force"])
 
     def contact_pressure(self) -> np.ndarray:
         """Contact pressure of all tools (N/mm^2, holder included) averaged over each local cell."""
         p = np.zeros(self.areas.size)
         for _, response in self.tool_contact.last.values():
             p += response.pressure
-        if self.holder is not None and self.holder.last is not None:
-            p += self.holder.last.pressure
         A = self.areas.reshape(-1, self.n_extra)
         return (p.reshape(-1, self.n_extra) * A).sum(axis=1) / A.sum(axis=1)
 
@@ -393,7 +385,8 @@ class Forming:
             summary.update({
                 "title": self.config.title, "tools": self.kind,
                 "yarn_angle_deg": self.config.blank.yarn_angle,
-                "stroke_mm": rows[-1].get("stroke", 0.0), "full_stroke_mm": self.stroke,
+                "stroke_mm": rows[-1].get("stroke", 0.0), "configured_stroke_mm": self.stroke,
+                "tools_full_stroke_mm": full_stroke(self.config),
                 "max_punch_force_N": float(max(forces)),
                 "punch_force_at_end_N": float(forces[-1]),
                 "holder_force_N": self.process.holder_force,

@@ -181,7 +181,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     problem = MembraneProblem(blank_mesh, law, config.blank.yarn_angle,
                               config.regularisation.out_of_plane_damping,
                               contributions=forming.contributions if forming else None,
-                              jit_params=jit_params)
+                              jit_params=jit_params,
+                              bending_rigidity=config.bending.value(forming is not None))
     if forming is not None:
         forming.bind(problem)
     motion = PrescribedMotion(problem.V, blank_mesh, loading)
@@ -232,6 +233,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         row["regularisation_work"] = ledger["regularisation"]
         row["regularisation_share"] = (ledger["regularisation"] / abs(ledger["external"])
                                        if ledger["external"] != 0.0 else 0.0)
+        row["bending_energy"] = problem.bending_energy()
         row["max_shear_angle_deg"] = comm.allreduce(local_max, op=MPI.MAX)
         strain = max(float(np.abs(response.S11).max()) / yarn_modulus[0],
                      float(np.abs(response.S22).max()) / yarn_modulus[1]) if response.tau.size else 0.0
@@ -240,8 +242,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         tau_count = comm.allreduce(response.tau.size)
         row["tau_mean"] = tau_sum / tau_count
         if forming is not None:
-            row.update(forming.measure(t))
-            forming.committed(t)
+            row.update(forming.measure(t, converged=step > 0))
+            forming.control_holder(row)
             # the punch's work (trapezoidal in the stroke) is the forming job's external work
             before = rows[-1] if rows else {"punch_work": 0.0, "punch_force": 0.0, "stroke": 0.0}
             row["punch_work"] = before["punch_work"] + 0.5 * (
@@ -249,6 +251,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             row["external_work"] += row["punch_work"]
             row["regularisation_share"] = (ledger["regularisation"] / abs(row["external_work"])
                                            if row["external_work"] != 0.0 else 0.0)
+            row["bending_share"] = (row["bending_energy"] / abs(row["external_work"])
+                                    if row["external_work"] != 0.0 else 0.0)
         if frame is not None:
             angle = row[frame.angle]
             q = motion.conjugate_force(force, t, frame.angle)
@@ -279,7 +283,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
     def accept(step):
         ledger["regularisation"] += problem.regularisation_work()
-        problem.commit()
+        problem.commit(step.t)
         row = record(step.number, step.t, step.iterations, step.cutbacks, step.dt,
                      step.residual, step.seconds)
         writer.write_step(row, step.t, last=step.t >= 1.0 - 1e-12)

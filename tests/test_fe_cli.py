@@ -28,11 +28,19 @@ SHORT_OVERRIDES = {
     # the +-45 deg lattice at 10 mm, the clamp pulled 6 mm (about 10 deg of shear)
     "bias_extension.toml": ["mesh.size=10", "history.d.values=[0, 6]", "steps.initial=0.1",
                             "steps.maximum=0.2"],
-    # forming: the coarsest mesh the tools allow, the punch 0.5 mm down in 2 steps
+    # forming: the coarsest mesh the tools allow, the punch 0.5 mm down in 2 steps (the double
+    # dome 0.2 mm in one: its first step, which lifts the blank off the die, costs 26 iterations)
     "hemisphere.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5"],
     "hemisphere_45.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5"],
-    "double_dome.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5"],
-    "double_dome_45.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5"],
+    "double_dome.toml": ["process.stroke=0.2", "steps.initial=1", "steps.maximum=1"],
+    "double_dome_45.toml": ["process.stroke=0.2", "steps.initial=1", "steps.maximum=1",
+                            "steps.minimum=0.5"],   # fail after one attempt (KNOWN_FAILING)
+}
+#: shipped configs whose short version does not run yet (an expected failure, strict: the test
+#: says when it starts to work)
+KNOWN_FAILING = {
+    "double_dome_45.toml": "open (docs/forming.md, Limits): Newton's first step, which lifts "
+                           "the +-45 blank off the die, does not converge in 40 iterations",
 }
 #: top-level configs/*.toml files that are not `drape run` jobs (name -> why); materials and
 #: tools live in configs/materials and configs/tools
@@ -60,7 +68,9 @@ def test_every_shipped_job_has_a_short_version():
                          "(or NOT_JOBS) in tests/test_fe_cli.py")
 
 
-@pytest.mark.parametrize("config", shipped_jobs())
+@pytest.mark.parametrize("config", [
+    pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=KNOWN_FAILING[name]))
+    if name in KNOWN_FAILING else name for name in shipped_jobs()])
 def test_one_and_two_ranks_give_the_same_results(tmp_path, config):
     assert config in SHORT_OVERRIDES, f"no short version of configs/{config} in SHORT_OVERRIDES"
     short = [arg for text in SHORT_OVERRIDES[config] for arg in ("--set", text)]

@@ -1,8 +1,8 @@
 """Forming jobs (drape/forming.py): the hemisphere's shear field and its symmetries, what a
 forming run writes, penetration, the force-controlled holder, the double dome starting.
 
-The runs are short (the punch 2 mm down on the coarsest mesh the tools allow): deeper runs take
-many minutes (docs/forming.md, "Limits").
+The runs are short (the punch 5 mm down on the coarsest mesh the tools allow): the default
+30 mm run takes about ten minutes (docs/forming.md).
 """
 
 import csv
@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 
 from conftest import CONFIGS
 
-SHORT = ["process.stroke=2", "steps.initial=0.1", "steps.maximum=0.1"]
+SHORT = ["process.stroke=5", "steps.initial=0.05", "steps.maximum=0.2"]
 
 
 def run(config, folder, overrides=()):
@@ -51,19 +51,26 @@ def test_outputs_of_a_forming_run(hemisphere):
     steps = rows_of(folder, "steps.csv")
     forces = rows_of(folder, "force_stroke.csv")
     assert len(forces) == len(steps) == report["steps"] + 1
-    assert float(forces[-1]["stroke"]) == pytest.approx(2.0, rel=1e-12)
+    assert float(forces[-1]["stroke"]) == pytest.approx(5.0, rel=1e-12)
     assert report["max_shear_angle_deg"] == pytest.approx(
         max(float(r["max_shear_angle_deg"]) for r in steps[-1:]), rel=1e-12)
     assert report["max_punch_force_N"] == pytest.approx(
         max(float(r["punch_force"]) for r in forces), rel=1e-12)
     assert report["max_punch_force_N"] > 0.0
-    # the force-controlled holder applies exactly its force at every step
+    # vertical equilibrium of the blank (no other load on it): die = punch + holder, to Newton's
+    # tolerance; the force-controlled holder reaches its 200 N within a few steps and stays there
     for row in steps[1:]:
-        assert float(row["holder_force"]) == pytest.approx(200.0, rel=1e-12)
+        die, punch, holder = (float(row[f"{k}_force"]) for k in ("die", "punch", "holder"))
+        assert abs(die - punch - holder) < 1e-6 * die, row["step"]
+    for row in steps[4:]:
+        assert float(row["holder_force"]) == pytest.approx(200.0, rel=0.01), row["step"]
     assert "contact_pressure" in (folder / "fields.xdmf").read_text()
 
 
 def test_penetration_stays_far_below_the_element_size(hemisphere):
+    """The smoothed penalty pushes from g0 = 0.05 h off a tool's surface and reaches the plain
+    penalty's slope at the surface (docs/forming.md); at the pressures of these runs the fabric
+    stays outside every tool, far from a penetration of 1 % of h."""
     job, _, folder = hemisphere
     h = job.config.mesh.size
     for row in rows_of(folder, "steps.csv"):
@@ -135,8 +142,8 @@ def test_double_dome_starts_and_presses(tmp_path):
     comm = MPI.COMM_WORLD
     folder = comm.bcast(tmp_path if comm.rank == 0 else None, root=0)
     job, summary = run("double_dome.toml", folder / "dd", ["process.stroke=1",
-                                                            "steps.initial=0.25",
-                                                            "steps.maximum=0.25"])
+                                                            "steps.initial=0.5",
+                                                            "steps.maximum=0.5"])
     if comm.rank == 0:
         report = json.loads((folder / "dd" / "summary.json").read_text())
         assert report["stroke_mm"] == pytest.approx(1.0)
