@@ -18,6 +18,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from drape import calibrate as cal
 from drape.cli import main
@@ -209,6 +210,7 @@ def cyclic_rows(n=24):
     return "".join(f"{g},{0.01 * g}\n" for g in history)
 
 
+@pytest.mark.serial   # rank 0 alone prints; tests/test_bad_inputs.py runs these under mpirun
 def test_bad_input_is_refused_with_a_clear_message(tmp_path, capsys):
     err = run_bad(tmp_path, capsys, None, name="missing.csv")
     assert "missing.csv: file not found" in err and "gamma_t_deg" in err

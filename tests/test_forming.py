@@ -114,7 +114,7 @@ def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
 
 
 @pytest.mark.xfail(strict=True, reason="open (docs/forming.md, Limits): point by point the +-45 "
-                   "field differs from the turned 0/90 one by up to 0.89 deg of 1.54 deg at 2 mm")
+                   "field differs from the turned 0/90 one by more than 15 % of its maximum")
 def test_hemisphere_45_is_the_0_90_field_rotated(hemisphere, tmp_path):
     """Yarns at +-45 on the same square blank: near the punch (r < 45 mm, where the blank's
     outline is far) the |shear| field is the 0/90 one turned by 45 degrees; its peak lies on a
@@ -124,7 +124,7 @@ def test_hemisphere_45_is_the_0_90_field_rotated(hemisphere, tmp_path):
     folder = comm.bcast(tmp_path if comm.rank == 0 else None, root=0)
     run("hemisphere_45.toml", folder / "h45")
     if comm.rank != 0:
-        return
+        pytest.skip("rank 0 compares the fields")   # not a pass: the test is a strict xfail
     xy0, g0 = point_fields(hemisphere[2])
     xy45, g45 = point_fields(folder / "h45")
     c, s = np.cos(np.pi / 4), np.sin(np.pi / 4)
