@@ -39,6 +39,10 @@ FORCE_STROKE_FILE = "force_stroke.csv"
 SUMMARY_FILE = "summary.json"
 #: fabric counted as under the holder only when it lies on the die's top face (within this, mm)
 ON_DIE_TOLERANCE = 1.0
+#: out-of-plane damping (N/mm^3) of a forming job's first step when its config sets none: that
+#: step lifts the blank as meshed off the die to where the smoothed penalty lets go, and the
+#: parts with no tool pushing back have no out-of-plane stiffness there (docs/forming.md)
+SETTLING_DAMPING = 1e-3
 
 
 # --- validation of a forming job -------------------------------------------------------------------
@@ -325,9 +329,12 @@ class Forming:
     def predict(self, t: float) -> None:
         """Start Newton from the last two converged steps extrapolated linearly to t, not from
         the last one: the punch has moved on, and the fabric in contact with it with it
-        (without this, a step needs 15-25 Newton iterations instead of a handful)."""
+        (without this, a step needs 15-25 Newton iterations instead of a handful). The first
+        step is damped with :data:`SETTLING_DAMPING` unless the config sets a damping."""
         p = self.problem
         t1, t0 = p.t_committed, p.t_previous
+        first = t1 == 0.0 and p.damping == 0.0
+        p.damping_constant.value = SETTLING_DAMPING if first else p.damping
         if t0 is None or t1 <= t0:
             return
         u1, u0 = p.u_committed.x.array, p.u_previous.x.array
@@ -397,6 +404,7 @@ class Forming:
                     r.get("newton_iterations", 0) for r in rows)),
                 "cutbacks": int(sum(r.get("cutbacks", 0) for r in rows)),
                 "wall_time_s": seconds, "ranks": self.comm.size,
+                "cells": problem.mesh.topology.index_map(problem.mesh.topology.dim).size_global,
             })
             folder = Path(folder)
             forming_output.write_force_stroke(folder, rows)

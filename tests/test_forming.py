@@ -57,9 +57,10 @@ def test_outputs_of_a_forming_run(hemisphere):
     assert report["max_punch_force_N"] == pytest.approx(
         max(float(r["punch_force"]) for r in forces), rel=1e-12)
     assert report["max_punch_force_N"] > 0.0
-    # vertical equilibrium of the blank (no other load on it): die = punch + holder, to Newton's
-    # tolerance; the force-controlled holder reaches its 200 N within a few steps and stays there
-    for row in steps[1:]:
+    # vertical equilibrium of the blank (no other load on it after the first step, which alone
+    # is damped: forming.SETTLING_DAMPING): die = punch + holder, to Newton's tolerance; the
+    # force-controlled holder reaches its 200 N within a few steps and stays there
+    for row in steps[2:]:
         die, punch, holder = (float(row[f"{k}_force"]) for k in ("die", "punch", "holder"))
         assert abs(die - punch - holder) < 1e-6 * die, row["step"]
     for row in steps[4:]:

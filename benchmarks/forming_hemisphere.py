@@ -1,0 +1,83 @@
+"""Wall time of the hemisphere forming job on 1 and 2 ranks, side by side, with the breakdown
+per load step (stroke, Newton iterations, cutbacks, seconds).
+
+    .venv/bin/python benchmarks/forming_hemisphere.py                 # 10 mm, both rank counts
+    .venv/bin/python benchmarks/forming_hemisphere.py --stroke 30     # the default job's stroke
+    .venv/bin/python benchmarks/forming_hemisphere.py --set mesh.size=2 --ranks 2
+
+Each run is `drape run configs/hemisphere.toml` (through mpirun for 2 ranks) into a temporary
+folder; the figures come from its summary.json (wall_time_s: the load steps, after meshing and
+the JIT) and steps.csv (seconds per step). The 1-rank run is the baseline of the same call.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+CONFIG = REPO / "configs" / "hemisphere.toml"
+
+
+def run(ranks: int, stroke: float, overrides: list[str], folder: Path) -> dict:
+    """One drape run; returns its summary, its steps and the whole process's wall time (s)."""
+    command = [sys.executable, "-m", "drape.cli", "run", str(CONFIG), "--output", str(folder),
+               "--quiet", "--set", f"process.stroke={stroke:g}", "--set", "output.xdmf=false"]
+    for text in overrides:
+        command += ["--set", text]
+    if ranks > 1:
+        command = ["mpirun", "-n", str(ranks), *command]
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1")
+    started = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True, env=env, cwd=REPO)
+    seconds = time.perf_counter() - started
+    if done.returncode != 0:
+        sys.exit(f"forming_hemisphere: the {ranks}-rank run failed:\n{done.stderr}")
+    summary = json.loads((folder / "summary.json").read_text())
+    with (folder / "steps.csv").open() as stream:
+        steps = list(csv.DictReader(stream))
+    return {"summary": summary, "steps": steps, "process_s": seconds}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--stroke", type=float, default=10.0, help="punch travel (mm)")
+    parser.add_argument("--ranks", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="further config overrides (e.g. mesh.size=2)")
+    args = parser.parse_args(argv)
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for ranks in args.ranks:
+            results[ranks] = run(ranks, args.stroke, args.set, Path(tmp) / f"ranks{ranks}")
+    print(f"hemisphere, stroke {args.stroke:g} mm, overrides {args.set or 'none'}")
+    print(f"{'':32s}" + "".join(f"{f'{r} rank(s)':>14s}" for r in args.ranks))
+    rows = [("cells", lambda r: r["summary"].get("cells", "")),
+            ("steps", lambda r: r["summary"]["steps"]),
+            ("Newton iterations", lambda r: r["summary"]["newton_iterations"]),
+            ("cutbacks", lambda r: r["summary"]["cutbacks"]),
+            ("load steps wall time (s)", lambda r: f"{r['summary']['wall_time_s']:.1f}"),
+            ("whole process (s)", lambda r: f"{r['process_s']:.1f}"),
+            ("s per Newton iteration", lambda r: f"{r['summary']['wall_time_s'] / max(1, r['summary']['newton_iterations']):.3f}"),
+            ("max shear (deg)", lambda r: f"{r['summary']['max_shear_angle_deg']:.3f}"),
+            ("max punch force (N)", lambda r: f"{r['summary']['max_punch_force_N']:.3f}")]
+    for label, value in rows:
+        print(f"{label:32s}" + "".join(f"{str(value(results[r])):>14s}" for r in args.ranks))
+    for ranks in args.ranks:
+        print(f"\nper step, {ranks} rank(s): step, stroke (mm), Newton iterations, cutbacks, s")
+        for row in results[ranks]["steps"][1:]:
+            print(f"  {row['step']:>4s} {float(row['stroke']):8.3f} {row['newton_iterations']:>4s} "
+                  f"{row['cutbacks']:>3s} {float(row['seconds']):8.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
