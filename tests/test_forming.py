@@ -2,7 +2,7 @@
 forming run writes, penetration, the force-controlled holder, the double dome starting.
 
 The runs are short (the punch 5 mm down on the coarsest mesh the tools allow): the default
-30 mm run takes about ten minutes (docs/forming.md).
+20 mm run takes minutes (docs/forming.md).
 """
 
 import csv
