@@ -164,8 +164,7 @@ def traction(gap, normal, slip_increment, penalty, friction=DEFAULT_FRICTION,
         stiffness = np.where(g <= 0.0, eps, 0.0)
     t, friction_tangent, phi, slip = _friction(p, n, ds, mu, delta)
     # normal part of the tangent: dp/du = -(-dp/dg) n, acting on (n - mu phi)
-    active = stiffness
-    tangent = friction_tangent - active[:, None, None] * (n - mu[:, None] * phi)[:, :, None] * n[:, None, :]
+    tangent = friction_tangent - stiffness[:, None, None] * (n - mu[:, None] * phi)[:, :, None] * n[:, None, :]
     state = np.where(~contact, SEPARATED, np.where(slip, SLIP, STICK))
     return ContactResponse(t, tangent, p, state)
 

@@ -114,6 +114,15 @@ class MembraneProblem:
         nq = self.nq = len(self.weights)
         self.n_cells = msh.topology.index_map(2).size_local
         self.cells = np.arange(self.n_cells, dtype=np.int32)
+        # reference area (mm^2) of every local cell, ghosts too (the bending hinges on the
+        # edges a rank shares need the cell size on both sides), from the law's quadrature
+        n_all = self.n_cells + msh.topology.index_map(2).num_ghosts
+        detJ = fem.Expression(ufl.JacobianDeterminant(msh), self.points, jit_params=jit)
+        weights = (np.abs(detJ.eval(np.arange(n_all, dtype=np.int32))).reshape(n_all, nq)
+                   * self.weights)
+        areas_with_ghosts = weights.sum(axis=1)
+        self.cell_areas = areas_with_ghosts[: self.n_cells]
+        self._average_weights = weights[: self.n_cells] / self.cell_areas[:, None]
 
         # --- spaces and functions
         self.V = fem.VectorFunctionSpace(msh, ("CG", 1), dim=3)
@@ -168,7 +177,7 @@ class MembraneProblem:
         self.bending_rigidity = float(bending_rigidity)
         bending_energy = None
         if self.bending_rigidity > 0.0:
-            bending_energy = self._bending_energy(F, jit)
+            bending_energy = self._bending_energy(F, areas_with_ghosts)
             bending_residual = ufl.derivative(bending_energy, u, v)
             residual += bending_residual
             jacobian += ufl.derivative(bending_residual, u, du)
@@ -210,10 +219,6 @@ class MembraneProblem:
         self._directions = fem.Expression(ufl.as_vector([(F * G1)[i] for i in range(3)]
                                                         + [(F * G2)[i] for i in range(3)]),
                                           self.points, jit_params=jit)
-        detJ = fem.Expression(ufl.JacobianDeterminant(msh), self.points, jit_params=jit)
-        weights = np.abs(detJ.eval(self.cells)).reshape(self.n_cells, nq) * self.weights
-        self.cell_areas = weights.sum(axis=1)
-        self._average_weights = weights / self.cell_areas[:, None]
         x_points = fem.Expression(ufl.SpatialCoordinate(msh), self.points, jit_params=jit)
         self.point_coordinates = x_points.eval(self.cells).reshape(-1, 2)
 
@@ -225,19 +230,16 @@ class MembraneProblem:
         self.nonfinite: set[str] = set()
         self._finite = True
 
-    def _bending_energy(self, F, jit):
-        """W_b (N mm) as a UFL form over the interior facets; h per cell (a DG0 function): the
-        edge length of a yarn-aligned element, sqrt(area) on quadrilaterals, sqrt(2 area) on
-        triangles (the legs of the right triangles)."""
-        import basix
+    def _bending_energy(self, F, area):
+        """W_b (N mm) as a UFL form over the interior facets; h per cell (a DG0 function) from
+        its reference area (local and ghost cells, mm^2): the edge length of a yarn-aligned
+        element, sqrt(area) on quadrilaterals, sqrt(2 area) on triangles (the legs of the right
+        triangles)."""
         import ufl
         from dolfinx import fem
         msh = self.mesh
         cell_name = msh.topology.cell_type.name
-        points, weights = basix.make_quadrature(getattr(basix.CellType, cell_name), 1)
-        detJ = fem.Expression(ufl.JacobianDeterminant(msh), points, jit_params=jit)
-        n_all = msh.topology.index_map(2).size_local + msh.topology.index_map(2).num_ghosts
-        area = np.abs(detJ.eval(np.arange(n_all, dtype=np.int32))).reshape(n_all, -1) @ weights
+        n_all = len(area)
         D0 = fem.FunctionSpace(msh, ("DG", 0))
         self.cell_size = fem.Function(D0, name="cell_size")
         dofs = D0.dofmap.list.array.reshape(-1)[:n_all]    # one dof per cell, in cell order
