@@ -21,6 +21,10 @@ apt_packages=(
   python3-pytest python3-pytest-timeout python3-hypothesis
   python3-venv python3-pip python3-setuptools python3-wheel
   openmpi-bin
+  # an optimised BLAS/LAPACK for MUMPS's dense fronts (Debian's alternatives switch libblas.so.3
+  # to it; the reference BLAS made a factorisation 3 times slower, docs/benchmarks.md). The
+  # serial build: under mpirun every rank is a process, and BLAS threads would oversubscribe.
+  libopenblas0-serial
 )
 if [ "${DRAPE_PARAVIEW:-0}" = 1 ]; then
   apt_packages+=(paraview python3-paraview xvfb xauth)
