@@ -35,7 +35,7 @@ CHECKPOINT_FILE = "checkpoint.npz"
 #: a copy of fields.xdmf taken with each checkpoint (dolfinx rewrites the XDMF text in place
 #: after every step: a hard kill at that moment leaves it empty)
 XDMF_COPY = "checkpoint.xdmf"
-VERSION = 2
+VERSION = 3
 #: config keys a resume may change (they do not change the numbers)
 FREE_KEYS = ("title", "material", "output.folder", "output.checkpoint_every")
 

@@ -137,6 +137,88 @@ def test_hemisphere_45_is_the_0_90_field_rotated(hemisphere, tmp_path):
     assert np.abs(g45).max() == pytest.approx(np.abs(g0).max(), rel=0.15)
 
 
+class FlatDie:
+    """The plane z = 0, material below: gap z, normal +z (drape.tools' query interface)."""
+
+    name = "die"
+
+    def query(self, points, offset=None, cutoff=None):
+        from drape.tools import ContactQuery
+        z = points[:, 2] - (0.0 if offset is None else offset[2])
+        normal = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+        return ContactQuery(z, normal, points * [1.0, 1.0, 0.0])
+
+
+def drag(contact, path, depth=-0.01):
+    """Press one point to ``depth`` and move it through the x positions of ``path`` (mm), one
+    converged step each; returns the friction traction t_x (N/mm^2) after every step."""
+    contact.setup(np.zeros((1, 2)))
+    friction = []
+    for x in path:
+        u = np.array([[x, 0.0, depth]])
+        f, _ = contact.evaluate(u, u)
+        contact.commit()
+        friction.append(f[0, 0])
+    return np.array(friction)
+
+
+@pytest.mark.parametrize("steps", [1, 4, 20])
+def test_friction_has_memory_so_the_step_size_does_not_matter(steps):
+    """Friction (elastic slip delta, then mu p) on a point dragged over a flat die: after a
+    total slip S it is -mu p min(S / delta, 1) however many steps S took (the slip held in the
+    stick zone carries over from step to step); dragged back by 1.5 delta after sliding, it
+    is +mu p / 2 (sliding left the elastic slip at +delta); off the tool it forgets."""
+    from drape.contact import normal_pressure
+    from drape.forming import ToolContact
+    mu, delta, eps = 0.3, 0.05, 100.0
+    contact = ToolContact({"die": FlatDie()}, set(), 0.0, eps, mu, delta, cutoff=10.0)
+    p = float(normal_pressure(np.array([-0.01]), eps, 0.0)[0][0])
+    stick = drag(contact, np.linspace(0.0, 0.5 * delta, steps + 1)[1:])
+    assert stick[-1] == pytest.approx(-0.5 * mu * p, rel=1e-12)
+    forward = np.linspace(0.0, 3.0 * delta, steps + 1)[1:]
+    assert drag(contact, forward)[-1] == pytest.approx(-mu * p, rel=1e-12)
+    back = 3.0 * delta - np.linspace(0.0, 1.5 * delta, steps + 1)[1:]
+    assert drag(contact, np.concatenate([forward, back]))[-1] == pytest.approx(0.5 * mu * p,
+                                                                                 rel=1e-9)
+    lifted = np.array([[3.0 * delta, 0.0, 1.0]])
+    contact.evaluate(lifted, lifted)
+    contact.commit()
+    u = np.array([[3.0 * delta + 0.1 * delta, 0.0, -0.01]])
+    f, _ = contact.evaluate(u, u)
+    assert f[0, 0] == pytest.approx(-0.1 * mu * p, rel=1e-9)
+
+
+def test_a_resumed_forming_run_equals_the_uninterrupted_one(tmp_path):
+    """Stopped after step 4 and resumed from its checkpoint, a forming run ends where the
+    uninterrupted one does: the friction memory, the holder's control and the tools' positions
+    are in the checkpoint."""
+    from mpi4py import MPI
+
+    from drape.job import load_job
+    from drape.run import run_job
+    comm = MPI.COMM_WORLD
+    folder = comm.bcast(tmp_path if comm.rank == 0 else None, root=0)
+    overrides = ["process.stroke=2", "steps.initial=0.1", "steps.maximum=0.2",
+                 "output.checkpoint_every=1", "output.xdmf=false"]
+    job = load_job(CONFIGS / "hemisphere.toml", overrides=overrides)
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_4(row, problem):
+        if row["step"] == 4:
+            raise Stop
+
+    with pytest.raises(Stop):
+        run_job(job, comm, output=str(folder / "stopped"), on_step=stop_after_4)
+    resumed = run_job(job, comm, output=str(folder / "stopped"), resume=True)
+    full = run_job(job, comm, output=str(folder / "full"))
+    assert resumed.steps == full.steps
+    for a, b in zip(resumed.rows, full.rows):
+        for key in ("punch_force", "holder_force", "max_shear_angle_deg"):
+            assert a[key] == pytest.approx(b[key], rel=1e-8, abs=1e-10), (a["step"], key)
+
+
 @pytest.mark.slow
 def test_double_dome_starts_and_presses(tmp_path):
     from mpi4py import MPI
