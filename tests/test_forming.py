@@ -114,27 +114,58 @@ def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
     assert abs(abs(xy[i, 0]) - abs(xy[i, 1])) < 3.0     # on a diagonal, within an element
 
 
-@pytest.mark.xfail(strict=True, reason="open (docs/forming.md, Limits): point by point the +-45 "
-                   "field differs from the turned 0/90 one by more than 15 % of its maximum")
-def test_hemisphere_45_is_the_0_90_field_rotated(hemisphere, tmp_path):
-    """Yarns at +-45 on the same square blank: near the punch (r < 45 mm, where the blank's
-    outline is far) the |shear| field is the 0/90 one turned by 45 degrees; its peak lies on a
-    yarn-axis direction of the blank, i.e. on the diagonal of the yarn frame."""
+def test_hemisphere_45_on_a_disc_is_the_0_90_field_turned(tmp_path):
+    """On a disc blank (an outline with no direction, unlike the square) the tools are
+    axisymmetric and the yarn-aligned O-grid turns with the yarns, so the +-45 problem is the
+    0/90 one turned by 45 degrees, mesh included: the shear fields agree point by point to
+    Newton's tolerance."""
+    from mpi4py import MPI
+    comm = MPI.COMM_WORLD
+    folder = comm.bcast(tmp_path if comm.rank == 0 else None, root=0)
+    disc = ['blank.shape="disc"', "blank.radius=100.0"]
+    run("hemisphere.toml", folder / "d0", disc + ["blank.yarn_angle=0.0"])
+    run("hemisphere.toml", folder / "d45", disc + ["blank.yarn_angle=45.0"])
+    if comm.rank != 0:
+        return
+    xy0, g0 = point_fields(folder / "d0")
+    xy45, g45 = point_fields(folder / "d45")
+    c, s = np.cos(np.pi / 4), np.sin(np.pi / 4)
+    d, j = cKDTree(xy0 @ np.array([[c, s], [-s, c]])).query(xy45)   # 0/90 points turned by +45
+    assert d.max() < 1e-6
+    top = np.abs(g0).max()
+    assert top > 0.5
+    assert np.abs(g45 - g0[j]).max() < 1e-6 * top
+
+
+def test_hemisphere_45_square_has_the_0_90_symmetry_turned(tmp_path):
+    """The shipped +-45 job (the same square blank, yarns along its diagonals) is not the 0/90
+    one turned (the outline differs relative to the yarns: its punch force at 5 mm is 3.5 N
+    against 1.9 N, docs/forming.md), but its symmetries are the 0/90 ones turned by 45 degrees:
+    mirror in the blank's axes swaps warp and weft (gamma unchanged, to Newton's tolerance),
+    mirror in its diagonals reverses one yarn (gamma -> -gamma, within 5 %: the law's even
+    terms), and the largest shear lies on a blank axis: the yarn frame's diagonal."""
     from mpi4py import MPI
     comm = MPI.COMM_WORLD
     folder = comm.bcast(tmp_path if comm.rank == 0 else None, root=0)
     run("hemisphere_45.toml", folder / "h45")
     if comm.rank != 0:
-        pytest.skip("rank 0 compares the fields")   # not a pass: the test is a strict xfail
-    xy0, g0 = point_fields(hemisphere[2])
-    xy45, g45 = point_fields(folder / "h45")
-    c, s = np.cos(np.pi / 4), np.sin(np.pi / 4)
-    turned = xy0 @ np.array([[c, s], [-s, c]])          # 0/90 points turned by +45 deg
-    inner = np.hypot(*xy45.T) < 45.0
-    d, j = cKDTree(turned).query(xy45[inner])
-    expected = np.abs(g0[j])
-    assert np.abs(np.abs(g45[inner]) - expected).max() < 0.15 * expected.max() + 0.1
-    assert np.abs(g45).max() == pytest.approx(np.abs(g0).max(), rel=0.15)
+        return
+    xy, gamma = point_fields(folder / "h45")
+    tree = cKDTree(xy)
+    top = np.abs(gamma).max()
+    assert top > 0.5
+
+    def mirrored(transform):
+        d, j = tree.query(transform(xy))
+        assert d.max() < 1e-6
+        return gamma[j]
+
+    for flip in (lambda p: p * [-1, 1], lambda p: p * [1, -1]):
+        assert np.abs(mirrored(flip) - gamma).max() < 1e-6 * top
+    for flip in (lambda p: p[:, ::-1], lambda p: -p[:, ::-1]):
+        assert np.abs(mirrored(flip) + gamma).max() < 0.05 * top
+    i = np.argmax(np.abs(gamma))
+    assert min(abs(xy[i, 0]), abs(xy[i, 1])) < 3.0     # on a blank axis, within an element
 
 
 class FlatDie:
