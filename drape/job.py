@@ -109,7 +109,7 @@ class RegularisationConfig:
 
 #: bending rigidity B (N mm) of a forming job whose config does not set it (docs/forming.md,
 #: "Bending": of the order measured on dry woven reinforcements)
-DEFAULT_FORMING_BENDING = 1.0
+DEFAULT_FORMING_BENDING = 10.0
 
 
 @dataclasses.dataclass(frozen=True)
