@@ -2,12 +2,16 @@
 per load step (stroke, Newton iterations, cutbacks, seconds).
 
     .venv/bin/python benchmarks/forming_hemisphere.py                 # 10 mm, both rank counts
-    .venv/bin/python benchmarks/forming_hemisphere.py --stroke 30     # the default job's stroke
+    .venv/bin/python benchmarks/forming_hemisphere.py --stroke 20     # the default job's stroke
     .venv/bin/python benchmarks/forming_hemisphere.py --set mesh.size=2 --ranks 2
+    .venv/bin/python benchmarks/forming_hemisphere.py --reference-blas   # + 1 rank, netlib BLAS
 
 Each run is `drape run configs/hemisphere.toml` (through mpirun for 2 ranks) into a temporary
 folder; the figures come from its summary.json (wall_time_s: the load steps, after meshing and
-the JIT) and steps.csv (seconds per step). The 1-rank run is the baseline of the same call.
+the JIT) and steps.csv (seconds per step). The 1-rank run is the baseline of the same call;
+``--reference-blas`` adds, first, a 1-rank run with Debian's reference BLAS and LAPACK
+(``LD_LIBRARY_PATH`` to their directories, which take precedence over the OpenBLAS that
+scripts/install.sh makes the system's choice), to show what the optimised BLAS gives.
 """
 
 from __future__ import annotations
@@ -26,7 +30,12 @@ REPO = Path(__file__).resolve().parent.parent
 CONFIG = REPO / "configs" / "hemisphere.toml"
 
 
-def run(ranks: int, stroke: float, overrides: list[str], folder: Path) -> dict:
+#: Debian's netlib BLAS and LAPACK (package libblas3, liblapack3), beside the alternatives
+REFERENCE_BLAS = "/usr/lib/x86_64-linux-gnu/blas:/usr/lib/x86_64-linux-gnu/lapack"
+
+
+def run(ranks: int, stroke: float, overrides: list[str], folder: Path,
+        reference_blas: bool = False) -> dict:
     """One drape run; returns its summary, its steps and the whole process's wall time (s)."""
     command = [sys.executable, "-m", "drape.cli", "run", str(CONFIG), "--output", str(folder),
                "--quiet", "--set", f"process.stroke={stroke:g}", "--set", "output.xdmf=false"]
@@ -36,6 +45,8 @@ def run(ranks: int, stroke: float, overrides: list[str], folder: Path) -> dict:
         command = ["mpirun", "-n", str(ranks), *command]
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                OMPI_MCA_rmaps_base_oversubscribe="1")
+    if reference_blas:
+        env["LD_LIBRARY_PATH"] = REFERENCE_BLAS + ":" + env.get("LD_LIBRARY_PATH", "")
     started = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True, env=env, cwd=REPO)
     seconds = time.perf_counter() - started
@@ -53,13 +64,18 @@ def main(argv=None) -> int:
     parser.add_argument("--ranks", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="further config overrides (e.g. mesh.size=2)")
+    parser.add_argument("--reference-blas", action="store_true",
+                        help="add a 1-rank run with Debian's reference BLAS/LAPACK, first")
     args = parser.parse_args(argv)
+    columns = ([("1, netlib BLAS", 1, True)] if args.reference_blas else []) + [
+        (f"{r} rank(s)", r, False) for r in args.ranks]
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for ranks in args.ranks:
-            results[ranks] = run(ranks, args.stroke, args.set, Path(tmp) / f"ranks{ranks}")
+        for label, ranks, reference in columns:
+            results[label] = run(ranks, args.stroke, args.set, Path(tmp) / f"run{len(results)}",
+                                 reference_blas=reference)
     print(f"hemisphere, stroke {args.stroke:g} mm, overrides {args.set or 'none'}")
-    print(f"{'':32s}" + "".join(f"{f'{r} rank(s)':>14s}" for r in args.ranks))
+    print(f"{'':32s}" + "".join(f"{label:>16s}" for label in results))
     rows = [("cells", lambda r: r["summary"].get("cells", "")),
             ("steps", lambda r: r["summary"]["steps"]),
             ("Newton iterations", lambda r: r["summary"]["newton_iterations"]),
@@ -70,10 +86,10 @@ def main(argv=None) -> int:
             ("max shear (deg)", lambda r: f"{r['summary']['max_shear_angle_deg']:.3f}"),
             ("max punch force (N)", lambda r: f"{r['summary']['max_punch_force_N']:.3f}")]
     for label, value in rows:
-        print(f"{label:32s}" + "".join(f"{str(value(results[r])):>14s}" for r in args.ranks))
-    for ranks in args.ranks:
-        print(f"\nper step, {ranks} rank(s): step, stroke (mm), Newton iterations, cutbacks, s")
-        for row in results[ranks]["steps"][1:]:
+        print(f"{label:32s}" + "".join(f"{str(value(r)):>16s}" for r in results.values()))
+    for label, result in results.items():
+        print(f"\nper step, {label}: step, stroke (mm), Newton iterations, cutbacks, s")
+        for row in result["steps"][1:]:
             print(f"  {row['step']:>4s} {float(row['stroke']):8.3f} {row['newton_iterations']:>4s} "
                   f"{row['cutbacks']:>3s} {float(row['seconds']):8.2f}")
     return 0
