@@ -83,6 +83,18 @@ def point_fields(folder):
     return data["point_xy"], data["gamma_t_deg"]
 
 
+def mirror_images(xy, gamma):
+    """transform -> gamma at the images of the points xy under it (a symmetry of the mesh: each
+    image is a point, within 1e-6 mm)."""
+    tree = cKDTree(xy)
+
+    def mirrored(transform):
+        d, j = tree.query(transform(xy))
+        assert d.max() < 1e-6
+        return gamma[j]
+    return mirrored
+
+
 def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
     """Mirror in the diagonal (x <-> y swaps warp and weft: gamma unchanged) to Newton's
     tolerance; mirror in a yarn axis (x -> -x reverses the warp: gamma -> -gamma) only as far
@@ -94,15 +106,9 @@ def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
         return
     _, summary, folder = hemisphere
     xy, gamma = point_fields(folder)
-    tree = cKDTree(xy)
     top = np.abs(gamma).max()
     assert top > 0.5
-
-    def mirrored(transform):
-        d, j = tree.query(transform(xy))
-        assert d.max() < 1e-6
-        return gamma[j]
-
+    mirrored = mirror_images(xy, gamma)
     diagonal = mirrored(lambda p: p[:, ::-1])
     assert np.abs(diagonal - gamma).max() < 1e-6 * top
     for flip in (lambda p: p * [-1, 1], lambda p: p * [1, -1]):
@@ -151,15 +157,9 @@ def test_hemisphere_45_square_has_the_0_90_symmetry_turned(tmp_path):
     if comm.rank != 0:
         return
     xy, gamma = point_fields(folder / "h45")
-    tree = cKDTree(xy)
     top = np.abs(gamma).max()
     assert top > 0.5
-
-    def mirrored(transform):
-        d, j = tree.query(transform(xy))
-        assert d.max() < 1e-6
-        return gamma[j]
-
+    mirrored = mirror_images(xy, gamma)
     for flip in (lambda p: p * [-1, 1], lambda p: p * [1, -1]):
         assert np.abs(mirrored(flip) - gamma).max() < 1e-6 * top
     for flip in (lambda p: p[:, ::-1], lambda p: -p[:, ::-1]):
