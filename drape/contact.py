@@ -5,9 +5,9 @@ At each quadrature point the finite-element layer supplies, from the current pos
 tool's gap g and unit normal n (pointing away from the tool, see :mod:`drape.tools`) and the
 slip Δs of the fabric relative to the tool (a 3-vector: the displacement increment over the
 current load step minus the tool's rigid motion, plus the elastic slip the point held in the
-stick zone at the last converged step, which :class:`drape.forming.ToolContact` keeps: so
-friction has memory, and a point drawn slowly over a tool reaches μ p whatever the step size). :func:`traction` returns the
-traction t the tool exerts on the fabric (N/mm², per unit reference area), its derivative
+stick zone at the last converged step, :func:`elastic_slip`, which
+:class:`drape.forming.ToolContact` keeps: so friction has memory, and a point drawn slowly
+over a tool reaches μ p whatever the step size). :func:`traction` returns the traction t the tool exerts on the fabric (N/mm², per unit reference area), its derivative
 dt/du with respect to the fabric displacement (3×3 per point) and the contact pressure.
 
 Normal law (penalty):   p = ε_N ⟨-g⟩,  t_N = p n        (⟨x⟩ = max(x, 0))
@@ -186,6 +186,20 @@ def _friction(p, n, ds, mu, delta):
     dphi = np.where(slip[:, None, None], eye - e[:, :, None] * e[:, None, :], eye)
     dphi = np.einsum("nij,njk->nik", dphi, proj) / scale[:, None, None]
     return t, -(mu * p)[:, None, None] * dphi, phi, slip
+
+
+def elastic_slip(slip, normal, pressure, regularisation) -> np.ndarray:
+    """The slip (N, 3) a point keeps for the next step once a step converges with slip Δs
+    (N, 3), normal n (N, 3) and pressure p (N,): friction's memory. Its tangential part Δs_T
+    while it sticks (|Δs_T| <= δ), Δs_T cut to the length δ where it slides (the edge of the
+    stick zone), nothing where it carries no pressure (off the tool)."""
+    slip = np.asarray(slip, dtype=float)
+    n = np.asarray(normal, dtype=float)
+    tangential = slip - np.sum(slip * n, axis=1)[:, None] * n
+    length = np.linalg.norm(tangential, axis=1)
+    keep = np.minimum(1.0, regularisation / np.maximum(length, 1e-300))
+    keep[np.asarray(pressure) <= 0.0] = 0.0
+    return tangential * keep[:, None]
 
 
 def penetration_report(gap, weights=None) -> dict:

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drape.contact import gap_for_pressure, traction
+from drape.contact import elastic_slip, gap_for_pressure, traction
 from drape.errors import InputError
 from drape.membrane import PointContribution
 
@@ -218,16 +218,12 @@ class ToolContact(PointContribution):
 
     def commit(self) -> None:
         """The converged step becomes the reference of the next; each point keeps the part of
-        its tangential slip within the stick zone: all of it while it sticks (|s_T| <= delta),
-        delta along the slip where it slides, none where it has left the tool."""
+        its tangential slip within the stick zone (:func:`drape.contact.elastic_slip`)."""
         self.committed_u = np.array(self._u, copy=True)
         self.committed_offsets = {k: v.copy() for k, v in self.offsets.items()}
         for name, (slip, n) in self._trial_slip.items():
-            tangential = slip - np.sum(slip * n, axis=1)[:, None] * n
-            length = np.linalg.norm(tangential, axis=1)
-            keep = np.minimum(1.0, self.regularisation / np.maximum(length, 1e-300))
-            keep[self.last[name][1].pressure <= 0.0] = 0.0
-            self.elastic_slip[name] = tangential * keep[:, None]
+            self.elastic_slip[name] = elastic_slip(slip, n, self.last[name][1].pressure,
+                                                   self.regularisation)
 
     def state(self) -> dict:
         state = {"committed_u": self.committed_u,
