@@ -22,6 +22,7 @@ import json
 import os
 import subprocess
 import sys
+import sysconfig
 import tempfile
 import time
 from pathlib import Path
@@ -30,8 +31,10 @@ REPO = Path(__file__).resolve().parent.parent
 CONFIG = REPO / "configs" / "hemisphere.toml"
 
 
-#: Debian's netlib BLAS and LAPACK (package libblas3, liblapack3), beside the alternatives
-REFERENCE_BLAS = "/usr/lib/x86_64-linux-gnu/blas:/usr/lib/x86_64-linux-gnu/lapack"
+#: Debian's netlib BLAS and LAPACK (packages libblas3, liblapack3), beside the alternatives,
+#: in the multiarch directory of this machine (x86_64-linux-gnu, aarch64-linux-gnu, ...)
+_LIB = Path("/usr/lib") / (sysconfig.get_config_var("MULTIARCH") or "x86_64-linux-gnu")
+REFERENCE_BLAS = f"{_LIB / 'blas'}:{_LIB / 'lapack'}"
 
 
 def run(ranks: int, stroke: float, overrides: list[str], folder: Path,
