@@ -33,6 +33,7 @@ import numpy as np
 
 from drape.config import from_mapping, non_negative, positive, read_toml, setting
 from drape.errors import InputError
+from drape.double_dome import SignedDistanceSurface, double_dome_surfaces
 from drape.tools import Arc, AxisymmetricSurface, Profile, Segment, TriangleSurface
 
 TOOL_NAMES = ("punch", "die", "holder")
@@ -387,6 +388,26 @@ def analytic_tools(cfg: HemisphereTools) -> dict[str, AxisymmetricSurface]:
     """Exact surfaces of the hemisphere tools (no meshing): punch, die, holder."""
     return {name: AxisymmetricSurface(profile, name)
             for name, profile in hemisphere_profiles(cfg).items()}
+
+
+def analytic_double_dome_tools(cfg: DoubleDomeTools) -> dict[str, SignedDistanceSurface]:
+    """Exact surfaces of the double-dome tools (no meshing): punch, die, holder, each the
+    opening of a sharp-edged core (drape.double_dome; docs/tools.md, "Exact double-dome
+    tools"). The die and holder are unbounded outward and the punch has no top face: only the
+    working faces are modelled."""
+    try:
+        return double_dome_surfaces(
+            dome_offset=cfg.dome_offset, punch_width=cfg.punch_width,
+            dome_radius=cfg.dome_radius, saddle_radius=cfg.saddle_radius,
+            punch_edge_radius=cfg.punch_edge_radius, die_entry_radius=cfg.die_entry_radius,
+            clearance=cfg.clearance, gap=cfg.gap, full_stroke=cfg.full_stroke,
+            holder_opening_radius=cfg.holder_opening_radius,
+            holder_edge_radius=cfg.holder_edge_radius)
+    except ValueError as error:     # dimensions validate() lets through but the shape cannot have
+        raise InputError(f"these double-dome dimensions give no valid tool shape ({error})",
+                         key="tools.double_dome",
+                         expected="a deeper cavity, a smaller die_entry_radius or flatter "
+                                  "domes (docs/tools.md, Double dome)") from None
 
 
 # --- gmsh builders ------------------------------------------------------------------------------
