@@ -8,8 +8,9 @@ A job is a forming job when its config has a ``[process]`` table; its ``[tools]`
 blank (rectangle or disc) is centred on the tools' axis in the plane z = 0, where the die's top
 face and the holder's lower face are (``tools.*.gap`` = 0).
 
-* The punch and the die are rigid surfaces (:mod:`drape.tools`: exact for the hemisphere's
-  surfaces of revolution, an exact closest point on the gmsh triangulation otherwise) queried at
+* The punch and the die are rigid surfaces (exact for the hemisphere's surfaces of revolution,
+  :mod:`drape.tools`, and for the double dome's rolling-ball constructions,
+  :mod:`drape.double_dome`; an exact closest point on the gmsh triangulation of STEP tools) queried at
   the membrane's quadrature points from their current positions; :func:`drape.contact.traction`
   gives traction and tangent. The punch moves by (0, 0, -stroke * t).
 * The blank holder is a rigid tool too, force-controlled: a membrane has no thickness, so the
@@ -279,7 +280,8 @@ class Forming:
     """Everything a forming job adds to ``drape run``: contributions, measurements, outputs."""
 
     def __init__(self, job, comm, log=None):
-        from drape.geometry.tools import analytic_tools, build_tools
+        from drape.geometry.tools import (analytic_double_dome_tools, analytic_tools,
+                                          build_tools)
         from drape.tools import MeshedSurface
 
         self.job, self.comm = job, comm
@@ -293,6 +295,9 @@ class Forming:
         if tools.kind == "hemisphere":
             surfaces = analytic_tools(dims)
             self.tool_description = "hemisphere tools (exact surfaces of revolution)"
+        elif tools.kind == "double_dome":
+            surfaces = analytic_double_dome_tools(dims)
+            self.tool_description = "double-dome tools (exact rolling-ball constructions)"
         else:
             started = time.perf_counter()
             meshed = build_tools(tools, comm=comm)

@@ -29,19 +29,15 @@ SHORT_OVERRIDES = {
     "bias_extension.toml": ["mesh.size=10", "history.d.values=[0, 6]", "steps.initial=0.1",
                             "steps.maximum=0.2"],
     # forming: the coarsest mesh the tools allow, the punch 0.5 mm down in 2 steps (the double
-    # dome 0.2 mm in one: its first step, which lifts the blank off the die, costs 26 iterations)
+    # dome 0.5 mm in one: its first step lifts the blank off the die)
     "hemisphere.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5"],
     "hemisphere_45.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5"],
-    "double_dome.toml": ["process.stroke=0.2", "steps.initial=1", "steps.maximum=1"],
-    "double_dome_45.toml": ["process.stroke=0.2", "steps.initial=1", "steps.maximum=1",
-                            "steps.minimum=0.5"],   # fail after one attempt (KNOWN_FAILING)
+    "double_dome.toml": ["process.stroke=0.5", "steps.initial=1", "steps.maximum=1"],
+    "double_dome_45.toml": ["process.stroke=0.5", "steps.initial=1", "steps.maximum=1"],
 }
 #: shipped configs whose short version does not run yet (an expected failure, strict: the test
-#: says when it starts to work)
-KNOWN_FAILING = {
-    "double_dome_45.toml": "open (docs/forming.md, Limits): Newton's first step, which lifts "
-                           "the +-45 blank off the die, does not converge in 40 iterations",
-}
+#: says when it starts to work); none at present
+KNOWN_FAILING: dict[str, str] = {}
 #: top-level configs/*.toml files that are not `drape run` jobs (name -> why); materials and
 #: tools live in configs/materials and configs/tools
 NOT_JOBS: dict[str, str] = {}
