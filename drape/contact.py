@@ -161,13 +161,21 @@ def traction(gap, normal, slip_increment, penalty, friction=DEFAULT_FRICTION,
         raise ValueError(f"expected gap (N,), normal and slip (N, 3); got {g.shape}, {n.shape}, "
                          f"{ds.shape}")
     p, stiffness = normal_pressure(g, eps, smoothing)
-    contact = p > 0.0
     if smoothing <= 0.0 and touching_is_active:
         stiffness = np.where(g <= 0.0, eps, 0.0)
-    t, friction_tangent, phi, slip = _friction(p, n, ds, mu, delta)
-    # normal part of the tangent: dp/du = -(-dp/dg) n, acting on (n - mu phi)
-    tangent = friction_tangent - stiffness[:, None, None] * (n - mu[:, None] * phi)[:, :, None] * n[:, None, :]
-    state = np.where(~contact, SEPARATED, np.where(slip, SLIP, STICK))
+    # only the points the tool acts on (p > 0, or a stiffness at the contact's onset): the
+    # others have no traction and no tangent, and on a forming job they are most of the blank
+    on = np.nonzero((p > 0.0) | (stiffness > 0.0))[0]
+    t = np.zeros(g.shape + (3,))
+    tangent = np.zeros(g.shape + (3, 3))
+    state = np.full(g.shape, SEPARATED)
+    if on.size:
+        n_on, mu_on, k_on = n[on], mu[on], stiffness[on]
+        t[on], friction_tangent, phi, slip = _friction(p[on], n_on, ds[on], mu_on, delta[on])
+        # normal part of the tangent: dp/du = -(-dp/dg) n, acting on (n - mu phi)
+        tangent[on] = friction_tangent - k_on[:, None, None] * (
+            n_on - mu_on[:, None] * phi)[:, :, None] * n_on[:, None, :]
+        state[on] = np.where(p[on] > 0.0, np.where(slip, SLIP, STICK), SEPARATED)
     return ContactResponse(t, tangent, p, state)
 
 
