@@ -163,15 +163,18 @@ def plot_shear_maps(folder: Path, cells: dict, locking_angle: float, title: str)
             ax.tricontour(centres[:, 0], centres[:, 1], shear, levels=[locking_angle],
                           colors="black", linewidths=0.8, linestyles="--")
 
-    def colourbar(fig, ax):
-        bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.85)
-        bar.set_label("|shear angle| (deg)")
+    def colourbar(fig, ax, pad=0.05):
+        bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.85,
+                           pad=pad)
+        bar.set_label(f"|shear angle| (deg); black line: locking angle, {locking_angle:g}")
         bar.ax.axhline(locking_angle, color="black", lw=1.5)
-        bar.ax.text(1.05, locking_angle / top, f" locking {locking_angle:g}",
-                    transform=bar.ax.transAxes, va="center", fontsize=8)
 
-    # the flat blank
-    fig, ax = plt.subplots(figsize=(7.0, 6.0), dpi=120)
+    # the flat blank, in a figure as wide as the blank's aspect wants (a 470 x 235 mm blank
+    # in a square figure leaves its colour bar twice the plot's height)
+    extent = np.ptp(cells["reference"].reshape(-1, 2), axis=0)
+    aspect = float(extent[0] / extent[1]) if extent[1] > 0 else 1.0
+    fig, ax = plt.subplots(figsize=(float(np.clip(2.5 + 4.5 * aspect, 7.0, 13.0)), 5.5),
+                           dpi=120)
     ax.add_collection(PolyCollection(cells["reference"], array=shear, cmap=cmap, norm=norm,
                                      edgecolors="face", linewidths=0.2))
     contour(ax, cells["reference"])
@@ -207,11 +210,12 @@ def plot_shear_maps(folder: Path, cells: dict, locking_angle: float, title: str)
     ax3.set_zlim(low[2], low[2] + max(span[2], 1.0))
     ax3.set_box_aspect((span[0], span[1], max(span[2], 1.0)))
     ax3.view_init(elev=35, azim=-60)
+    ax3.locator_params(axis="z", nbins=3)           # a shallow part's z axis is short
     ax3.set_xlabel("x (mm)")
     ax3.set_ylabel("y (mm)")
     ax3.set_zlabel("z (mm)")
     ax3.set_title("formed part", fontsize=10)
-    colourbar(fig, ax3)
+    colourbar(fig, ax3, pad=0.12)      # room for the 3-d axes' z label
     fig.suptitle((title + ": " if title else "") + "shear angle at the end of the stroke")
     fig.tight_layout()
     fig.savefig(Path(folder) / "shear_formed.png")
