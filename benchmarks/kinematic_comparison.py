@@ -1,0 +1,64 @@
+"""Where a double-dome run's shear map peaks, against a kinematic drape of the same ply.
+
+    .venv/bin/python benchmarks/kinematic_comparison.py CONFIG RESULTS [--spacing 5] [--count 60]
+
+CONFIG is the job's TOML, RESULTS the folder its run wrote (finished or stopped: the last
+converged step's `result.npz` is used). The kinematic (fishnet) drape puts the same ply on the
+die's exact surface (drape/kinematic.py: inextensible yarns, no forces), crossing the blank's
+centre at the die's point nearest (0, 0, -40) mm, the saddle's floor. Prints the stroke reached
+and `drape.kinematic.compare_peaks`: the FE peak on the flat blank, the kinematic shear's
+percentile there and over the FE's top 2 %, and the rank correlation of the two maps. The
+figures in docs/forming.md ("Double dome") were taken with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+#: a point above the die's floor at the saddle (mm); the drape starts at the die's point nearest it
+ORIGIN = (0.0, 0.0, -40.0)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("config", type=Path)
+    parser.add_argument("results", type=Path)
+    parser.add_argument("--spacing", type=float, default=5.0,
+                        help="yarn length between crossings of the kinematic net (mm)")
+    parser.add_argument("--count", type=int, default=60,
+                        help="crossings each way from the centre (60 x 5 mm covers the blank)")
+    args = parser.parse_args(argv)
+
+    from drape.errors import InputError
+    from drape.geometry.tools import analytic_double_dome_tools
+    from drape.job import load_job
+    from drape.kinematic import compare_peaks, drape_fishnet
+
+    try:
+        job = load_job(args.config)
+    except InputError as error:
+        sys.exit(f"kinematic_comparison: {error}")
+    if job.config.tools.kind != "double_dome":
+        sys.exit(f"kinematic_comparison: {args.config} has tools.kind = "
+                 f"{job.config.tools.kind!r}; this comparison is for kind = 'double_dome'")
+    result = args.results / "result.npz"
+    if not result.is_file():
+        sys.exit(f"kinematic_comparison: no {result}: RESULTS must be a folder a run of "
+                 f"{args.config} wrote (drape run CONFIG --output RESULTS)")
+    data = np.load(result)
+    summary = json.loads((args.results / "summary.json").read_text())
+    die = analytic_double_dome_tools(job.config.tools.double_dome)["die"]
+    drape = drape_fishnet(die, ORIGIN, job.config.blank.yarn_angle, args.spacing, args.count)
+    comparison = compare_peaks(data["point_xy"], data["gamma_t_deg"], drape)
+    print(f"{args.config}: stroke {summary['stroke_mm']:.1f} mm")
+    print(json.dumps(comparison, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
