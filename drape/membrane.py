@@ -338,9 +338,13 @@ class MembraneProblem:
         from dolfinx.fem import petsc as fpetsc
         return fpetsc.create_vector(self.residual_form)
 
-    def create_matrix(self):
+    def create_matrix(self, mat_type: str | None = None):
+        """A matrix for the Jacobian; ``mat_type`` a PETSc type ("baij": 3x3 blocks, one per
+        node pair), None for DOLFINx's default (AIJ)."""
         from dolfinx.fem import petsc as fpetsc
-        return fpetsc.create_matrix(self.jacobian_form)
+        if mat_type is None:
+            return fpetsc.create_matrix(self.jacobian_form)
+        return fpetsc.create_matrix(self.jacobian_form, mat_type)
 
     # --- steps ------------------------------------------------------------------------------------
     def commit(self, t: float | None = None) -> None:

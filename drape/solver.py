@@ -164,7 +164,11 @@ class NewtonSolver:
         self.snes = snes = PETSc.SNES().create(problem.comm)
         snes.setOptionsPrefix(PREFIX)
         self.b = problem.create_vector()
-        self.A = problem.create_matrix()
+        # the direct solver's matrix in 3x3 blocks (BAIJ): the bending hinges' interior-facet
+        # form inserts 24x24 values per edge, which AIJ finds entry by entry (a third of a
+        # 10k-cell iteration; docs/benchmarks.md). The field split needs AIJ: its in-plane and
+        # out-of-plane index sets cut through the blocks.
+        self.A = problem.create_matrix("baij" if config.linear == "direct" else None)
         # SNES's own iterate: the residual callback copies trial points (the line search's
         # too) into the problem's displacement, which must therefore not be this vector
         self.x = problem.u.vector.duplicate()
