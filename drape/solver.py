@@ -59,6 +59,20 @@ def default_options(config, force_scale: float) -> dict[str, str]:
     return {key: _option_text(value) for key, value in options.items()}
 
 
+def jacobian_matrix_type(options: dict[str, str]) -> str | None:
+    """The PETSc type of the Jacobian for these (final) options: "baij" (3x3 blocks, one per
+    pair of nodes) under LU with MUMPS, else None (DOLFINx's AIJ).
+
+    The bending hinges' interior-facet form inserts 24x24 values per edge, which AIJ looks up
+    one by one: on a 10 000-cell blank (2 ranks) the hinges' Jacobian assembled in 0.21 s with
+    AIJ and 0.09 s with BAIJ (docs/benchmarks.md). Other preconditioners keep AIJ: the field split
+    takes the x, y and z components apart, through the blocks, and GAMG, or MUMPS's Cholesky,
+    refuse BAIJ."""
+    direct = (options.get("pc_type") == "lu"
+              and options.get("pc_factor_mat_solver_type") == "mumps")
+    return "baij" if direct else None
+
+
 def _option_text(value) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -164,11 +178,7 @@ class NewtonSolver:
         self.snes = snes = PETSc.SNES().create(problem.comm)
         snes.setOptionsPrefix(PREFIX)
         self.b = problem.create_vector()
-        # the direct solver's matrix in 3x3 blocks (BAIJ): the bending hinges' interior-facet
-        # form inserts 24x24 values per edge, which AIJ finds entry by entry (a third of a
-        # 10k-cell iteration; docs/benchmarks.md). The field split needs AIJ: its in-plane and
-        # out-of-plane index sets cut through the blocks.
-        self.A = problem.create_matrix("baij" if config.linear == "direct" else None)
+        self.A = problem.create_matrix(jacobian_matrix_type(self.options))
         # SNES's own iterate: the residual callback copies trial points (the line search's
         # too) into the problem's displacement, which must therefore not be this vector
         self.x = problem.u.vector.duplicate()

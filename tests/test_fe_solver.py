@@ -44,3 +44,18 @@ def test_petsc_options_from_config_and_command_line_reach_the_solver(comm, share
     # the options are removed again after a run: the next run is not capped
     run_job(load_job(CONFIGS / "bias_extension.toml", overrides=SHORT), comm,
             output=shared_tmp / "uncapped")
+
+
+def test_the_jacobian_is_a_block_matrix_only_under_lu_with_mumps():
+    """BAIJ for the direct solver (and options that keep LU with MUMPS), AIJ wherever the
+    preconditioner cuts through the 3x3 blocks or does not take them (field split, GAMG, a
+    Cholesky)."""
+    from drape.job import SolverConfig
+    from drape.solver import default_options, jacobian_matrix_type
+    direct = default_options(SolverConfig(linear="direct"), 1.0)
+    assert jacobian_matrix_type(direct) == "baij"
+    assert jacobian_matrix_type({**direct, "ksp_type": "gmres", "snes_lag_preconditioner": "-2"}) == "baij"
+    assert jacobian_matrix_type(default_options(SolverConfig(linear="iterative"), 1.0)) is None
+    assert jacobian_matrix_type({**direct, "pc_type": "gamg"}) is None
+    assert jacobian_matrix_type({**direct, "pc_type": "cholesky"}) is None
+    assert jacobian_matrix_type({**direct, "pc_factor_mat_solver_type": "petsc"}) is None
