@@ -342,8 +342,6 @@ class MembraneProblem:
         """A matrix for the Jacobian; ``mat_type`` a PETSc type ("baij": 3x3 blocks, one per
         node pair), None for DOLFINx's default (AIJ)."""
         from dolfinx.fem import petsc as fpetsc
-        if mat_type is None:
-            return fpetsc.create_matrix(self.jacobian_form)
         return fpetsc.create_matrix(self.jacobian_form, mat_type)
 
     # --- steps ------------------------------------------------------------------------------------
