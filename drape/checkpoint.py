@@ -14,9 +14,10 @@ kill while writing leaves the previous checkpoint intact.
 
 Resuming rewinds the folder to the checkpoint (:func:`rewind_outputs`): ``steps.csv`` is
 rewritten from the checkpoint's rows, the XDMF time series (from its copy ``checkpoint.xdmf``,
-taken with the checkpoint) loses the grids after its t, and its HDF5 file is renamed
-``fields-<k>.h5`` (the XDMF follows) so that the resumed run writes into a fresh ``fields.h5``
-and never meets a dataset of a step written after the checkpoint (after a hard kill).
+taken with the checkpoint) loses the grids after its t, and its HDF5 file (from its copy
+``checkpoint.h5``: a hard kill during a write may have left ``fields.h5`` unreadable) is
+renamed ``fields-<k>.h5`` (the XDMF follows) so that the resumed run writes into a fresh
+``fields.h5`` and never meets a dataset of a step written after the checkpoint.
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ CHECKPOINT_FILE = "checkpoint.npz"
 #: a copy of fields.xdmf taken with each checkpoint (dolfinx rewrites the XDMF text in place
 #: after every step: a hard kill at that moment leaves it empty)
 XDMF_COPY = "checkpoint.xdmf"
+#: a copy of fields.h5 taken with each checkpoint: a hard kill while a step's fields are being
+#: written can leave the file's group index unreadable, the checkpointed steps' data with it
+H5_COPY = "checkpoint.h5"
 VERSION = 3
 #: config keys a resume may change (they do not change the numbers)
 FREE_KEYS = ("title", "material", "output.folder", "output.checkpoint_every")
@@ -115,9 +119,11 @@ class Checkpoints:
             arrays = {"meta": np.array(json.dumps(meta, default=_json_default))}
             for rank, part in enumerate(parts):
                 arrays.update({f"rank{rank}.{name}": value for name, value in part.items()})
-            xdmf = self.folder / "fields.xdmf"
+            xdmf, h5 = self.folder / "fields.xdmf", self.folder / "fields.h5"
             if xdmf.is_file():
                 _replace_text(self.folder / XDMF_COPY, xdmf.read_text())
+            if h5.is_file():
+                _replace_copy(h5, self.folder / H5_COPY)
             buffer = io.BytesIO()
             np.savez(buffer, **arrays)
             temporary = self.path.with_name(f".{CHECKPOINT_FILE}.tmp")
@@ -224,8 +230,10 @@ class Checkpoints:
 
 def rewind_outputs(folder, rows: list, t: float, comm) -> None:
     """Collective (rank 0 works): steps.csv is rewritten with ``rows`` (the checkpoint's);
-    fields.xdmf (from the checkpoint's copy) keeps the grids up to ``t``, its fields.h5 becomes
-    fields-<k>.h5 (the XDMF follows)."""
+    fields.xdmf (from the checkpoint's copy) keeps the grids up to ``t``, its fields.h5 (the
+    checkpoint's copy where there is one) becomes fields-<k>.h5 (the XDMF follows), and the
+    XDMF copy becomes the rewound XDMF, so that a second resume from the same checkpoint finds
+    the data where the first one put it."""
     import csv
 
     from drape.output import FIELDS_FILE, STEPS_FILE, _text
@@ -237,11 +245,14 @@ def rewind_outputs(folder, rows: list, t: float, comm) -> None:
         for row in rows:
             writer.writerow([_text(row.get(name, "")) for name in rows[0]])
         _replace_text(folder / STEPS_FILE, text.getvalue())
-        xdmf, copy = folder / FIELDS_FILE, folder / XDMF_COPY
+        xdmf, copy, h5_copy = folder / FIELDS_FILE, folder / XDMF_COPY, folder / H5_COPY
         if copy.is_file():
             _replace_text(xdmf, copy.read_text())
+        if h5_copy.is_file():
+            os.replace(h5_copy, xdmf.with_suffix(".h5"))
         if xdmf.is_file():
             trim_xdmf(xdmf, t)
+            _replace_text(copy, xdmf.read_text())
     comm.barrier()
 
 
@@ -279,6 +290,16 @@ def _replace_text(path: Path, text: str) -> None:
         stream.flush()
         os.fsync(stream.fileno())
     os.replace(temporary, path)
+
+
+def _replace_copy(source: Path, target: Path) -> None:
+    """Copy a file to a temporary name beside ``target``, then rename it into place."""
+    import shutil
+    temporary = target.with_name(f".{target.name}.tmp")
+    shutil.copyfile(source, temporary)
+    with open(temporary, "rb") as stream:
+        os.fsync(stream.fileno())
+    os.replace(temporary, target)
 
 
 def _array(value) -> np.ndarray:

@@ -334,8 +334,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 #: what a run writes in its folder (drape.folder.claim refuses to overwrite them silently)
 RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
 #: removed with them by --overwrite
-ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "frame_force.csv",
-                "frame_force.png")
+ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "checkpoint.h5",
+                "frame_force.csv", "frame_force.png")
 
 
 def _quiet_jit_logging() -> None:

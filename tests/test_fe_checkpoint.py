@@ -166,9 +166,12 @@ def test_sigterm_then_resume_gives_the_uninterrupted_result(tmp_path, ranks):
 
 
 @pytest.mark.serial
-def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path):
+@pytest.mark.parametrize("torn", [False, True])
+def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path, torn):
     """SIGKILL leaves steps after the last periodic checkpoint in steps.csv and fields.xdmf/h5:
-    the resume drops them and writes them again, once."""
+    the resume drops them and writes them again, once. ``torn``: the kill came while a step's
+    fields were being written and left fields.h5 unreadable (here: cut to two thirds of its
+    length); the resume takes the checkpointed steps' fields from the checkpoint's copy."""
     folder, uninterrupted = tmp_path / "killed", tmp_path / "uninterrupted"
     process = subprocess.Popen(command("run", CONFIGS / "bias_extension.toml", "--output", folder,
                                        *SHORT), cwd=REPO, env=ENV, stderr=subprocess.DEVNULL)
@@ -179,6 +182,9 @@ def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path)
     process.kill()
     process.wait()
     assert len(read_steps(folder)) > 6
+    if torn:
+        h5 = folder / "fields.h5"
+        os.truncate(h5, 2 * h5.stat().st_size // 3)
     done = drape("run", CONFIGS / "bias_extension.toml", "--output", folder, *SHORT, "--resume")
     assert done.returncode == 0, done.stderr
     full = drape("run", CONFIGS / "bias_extension.toml", "--output", uninterrupted, *SHORT)
