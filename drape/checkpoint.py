@@ -135,6 +135,13 @@ class Checkpoints:
         self.comm.barrier()
         self.saved_step = step.number
 
+    def finished(self) -> None:
+        """Collective, after the last step: the run closed fields.h5 whole, so the copy of it
+        kept for a torn write is removed (it would double the results' size on disk)."""
+        if self.comm.rank == 0:
+            (self.folder / H5_COPY).unlink(missing_ok=True)
+        self.comm.barrier()
+
     def _local_state(self) -> dict[str, np.ndarray]:
         p = self.problem
         state = {"node_xyz": p.V.tabulate_dof_coordinates(),

@@ -325,6 +325,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             frame_force.write(folder, side, frame_rows)
         if forming is not None and len(rows) > 1:
             forming.finish(folder, rows, time.perf_counter() - started)
+    checkpoints.finished()
     timings = dict(problem.timings)
     timings.update({f"count_{k}": v for k, v in problem.counts.items()})
     return RunSummary(rows[-1]["step"], rows[-1]["t"], time.perf_counter() - started, folder,

@@ -182,6 +182,7 @@ def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path,
     process.kill()
     process.wait()
     assert len(read_steps(folder)) > 6
+    assert (folder / "checkpoint.h5").is_file()
     if torn:
         h5 = folder / "fields.h5"
         os.truncate(h5, 2 * h5.stat().st_size // 3)
@@ -190,6 +191,9 @@ def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path,
     full = drape("run", CONFIGS / "bias_extension.toml", "--output", uninterrupted, *SHORT)
     assert full.returncode == 0, full.stderr
     check_same_as_uninterrupted(folder, uninterrupted)
+    # a finished run's fields.h5 is whole: the copy is removed
+    assert not (folder / "checkpoint.h5").exists()
+    assert not (uninterrupted / "checkpoint.h5").exists()
 
 
 @pytest.mark.serial
