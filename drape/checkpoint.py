@@ -119,19 +119,14 @@ class Checkpoints:
             arrays = {"meta": np.array(json.dumps(meta, default=_json_default))}
             for rank, part in enumerate(parts):
                 arrays.update({f"rank{rank}.{name}": value for name, value in part.items()})
-            xdmf, h5 = self.folder / "fields.xdmf", self.folder / "fields.h5"
+            from drape.output import FIELDS_FILE
+            xdmf = self.folder / FIELDS_FILE
+            h5 = xdmf.with_suffix(".h5")
             if xdmf.is_file():
                 _replace_text(self.folder / XDMF_COPY, xdmf.read_text())
             if h5.is_file():
                 _replace_copy(h5, self.folder / H5_COPY)
-            buffer = io.BytesIO()
-            np.savez(buffer, **arrays)
-            temporary = self.path.with_name(f".{CHECKPOINT_FILE}.tmp")
-            with open(temporary, "wb") as stream:
-                stream.write(buffer.getvalue())
-                stream.flush()
-                os.fsync(stream.fileno())
-            os.replace(temporary, self.path)
+            _replace_atomically(self.path, lambda stream: np.savez(stream, **arrays))
         self.comm.barrier()
         self.saved_step = step.number
 
@@ -290,23 +285,29 @@ def trim_xdmf(path: Path, t: float) -> None:
     _replace_text(path, buffer.getvalue().decode())
 
 
-def _replace_text(path: Path, text: str) -> None:
+def _replace_atomically(path: Path, write) -> None:
+    """``write(stream)`` into a temporary file beside ``path`` (binary), flush it to disk, then
+    rename it onto ``path``: a kill at any moment leaves either the old file or the new one."""
     temporary = path.with_name(f".{path.name}.tmp")
-    with open(temporary, "w", newline="") as stream:
-        stream.write(text)
+    with open(temporary, "wb") as stream:
+        write(stream)
         stream.flush()
         os.fsync(stream.fileno())
     os.replace(temporary, path)
 
 
+def _replace_text(path: Path, text: str) -> None:
+    _replace_atomically(path, lambda stream: stream.write(text.encode()))
+
+
 def _replace_copy(source: Path, target: Path) -> None:
-    """Copy a file to a temporary name beside ``target``, then rename it into place."""
+    """Copy ``source`` onto ``target`` atomically."""
     import shutil
-    temporary = target.with_name(f".{target.name}.tmp")
-    shutil.copyfile(source, temporary)
-    with open(temporary, "rb") as stream:
-        os.fsync(stream.fileno())
-    os.replace(temporary, target)
+
+    def copy(stream):
+        with open(source, "rb") as original:
+            shutil.copyfileobj(original, stream, 1 << 20)
+    _replace_atomically(target, copy)
 
 
 def _array(value) -> np.ndarray:
