@@ -318,13 +318,17 @@ class Forming:
                                         contact.friction, contact.slip_regularisation,
                                         self.process.contact_cutoff, self.smoothing)
         self.contributions = [self.tool_contact]
+        #: rho_A v^2 (N/mm) of the blank's inertia; 0: quasi-static (:meth:`predict`)
+        self.inertia = self.process.inertia()
         #: force control of the holder (None: no holder, or a position-controlled STEP one)
         self.holder = None
         self._holder_force_controlled = force_controlled and "holder" in surfaces
         self.force_rows = []
         say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, holder force "
             f"{self.process.holder_force:g} N, penalty {self.penalty:.4g} N/mm^3 (smoothed over "
-            f"{self.smoothing:.3g} mm), friction {contact.friction:g}")
+            f"{self.smoothing:.3g} mm), friction {contact.friction:g}"
+            + (f", inertia {self.process.areal_density:g} kg/m^2 at {self.process.punch_speed:g} "
+               f"m/s (rho_A v^2 = {self.inertia:.3g} N/mm)" if self.inertia > 0 else ""))
 
     # --- wiring ---------------------------------------------------------------------------------------
     def bind(self, problem) -> None:
@@ -351,15 +355,29 @@ class Forming:
         """Start Newton from the last two converged steps extrapolated linearly to t, not from
         the last one: the punch has moved on, and the fabric in contact with it with it
         (without this, a step needs 15-25 Newton iterations instead of a handful). The first
-        step is damped with :data:`SETTLING_DAMPING` unless the config sets a damping."""
+        step is damped with :data:`SETTLING_DAMPING` unless the config sets a damping.
+
+        With inertia (rho_A v^2 = m > 0) the same extrapolation u* is the motion the blank
+        carries on with, and the problem gets the inertial force m u'' with the backward second
+        difference u'' = 2 (u - u*) / (ds (ds + ds')), ds and ds' this step's and the last
+        step's punch travel (exact for a motion quadratic in the stroke): k_m = 2 m / (ds (ds +
+        ds')) in N/mm^3. After the first step (which only settles the blank onto the die) the
+        blank starts from rest: u* the last step, ds' = ds. The first step has no inertia."""
         p = self.problem
         t1, t0 = p.t_committed, p.t_previous
         first = t1 == 0.0 and p.damping == 0.0
         p.damping_constant.value = SETTLING_DAMPING if first else p.damping
-        if t0 is None or t1 <= t0:
+        moving = t0 is not None and t1 > t0
+        if moving:
+            u1, u0 = p.u_committed.x.array, p.u_previous.x.array
+            p.u.x.array[:] = u1 + (t - t1) / (t1 - t0) * (u1 - u0)
+        if p.u_anchor is None:
             return
-        u1, u0 = p.u_committed.x.array, p.u_previous.x.array
-        p.u.x.array[:] = u1 + (t - t1) / (t1 - t0) * (u1 - u0)
+        ds = self.stroke * (t - t1)
+        from_rest = not moving or t0 == 0.0
+        ds_last = ds if from_rest else self.stroke * (t1 - t0)
+        p.inertia_constant.value = 0.0 if t1 == 0.0 else 2.0 * self.inertia / (ds * (ds + ds_last))
+        p.u_anchor.x.array[:] = p.u_committed.x.array if from_rest else p.u.x.array
 
     # --- per step ---------------------------------------------------------------------------------------
     def measure(self, t: float, converged: bool = True) -> dict:

@@ -210,6 +210,17 @@ class ProcessConfig:
     contact_cutoff: float = setting(10.0, "meshed tools: exact closest points within this "
                                     "distance of the tool (farther points are out of contact)",
                                     positive, "mm")
+    areal_density: float = setting(
+        0.0, "the blank's mass per area, for its inertia (implicit dynamics, docs/forming.md, "
+        "\"Inertia\"); 0: quasi-static, no inertia", non_negative, "kg/m^2")
+    punch_speed: float = setting(1.0, "the punch's constant speed, which turns the load steps "
+                                 "into time steps (used only with areal_density > 0)",
+                                 positive, "m/s")
+
+    def inertia(self) -> float:
+        """rho_A v^2 (N/mm): the inertial force per area is this times d^2u/ds^2 (1/mm), s the
+        punch travel (kg/m^2 * (m/s)^2 = N/m = 1e-3 N/mm)."""
+        return 1e-3 * self.areal_density * self.punch_speed ** 2
 
 
 @dataclasses.dataclass(frozen=True)

@@ -91,7 +91,7 @@ class MembraneProblem:
 
     def __init__(self, blank_mesh, law, yarn_angle_deg: float, damping: float,
                  contributions: list[PointContribution] | None = None, jit_params: dict | None = None,
-                 bending_rigidity: float = 0.0):
+                 bending_rigidity: float = 0.0, inertia: bool = False):
         import basix
         import ufl
         from dolfinx import fem
@@ -172,6 +172,17 @@ class MembraneProblem:
         residual += k * (u[2] - self.u_committed[2]) * v[2] * dx_extra
         jacobian += k * du[2] * v[2] * dx_extra
         regularisation_work = 0.5 * k * (u[2] - self.u_committed[2]) ** 2 * dx_extra
+
+        # --- inertia (implicit dynamics; a forming job sets both every step, drape/forming.py):
+        # k_m (u - u_anchor) with u_anchor the motion carried on from the last steps, k_m in N/mm^3
+        self.inertia_constant = fem.Constant(msh, 0.0)
+        self.u_anchor = None
+        if inertia:
+            self.u_anchor = fem.Function(self.V, name="inertia_anchor")
+            k_m, lag = self.inertia_constant, u - self.u_anchor
+            residual += k_m * ufl.inner(lag, v) * dx_extra
+            jacobian += k_m * ufl.inner(du, v) * dx_extra
+            regularisation_work += 0.5 * k_m * ufl.inner(lag, lag) * dx_extra
 
         # --- bending: hinges across the interior edges (module docstring)
         self.bending_rigidity = float(bending_rigidity)
@@ -377,7 +388,8 @@ class MembraneProblem:
         return vector
 
     def regularisation_work(self) -> float:
-        """Work of the damping over the current step, 1/2 k int (u_z - u_z,last)^2 dA (N mm)."""
+        """Work of the damping over the current step, 1/2 k int (u_z - u_z,last)^2 dA, plus
+        that of the inertial force, 1/2 k_m int |u - u_anchor|^2 dA (N mm)."""
         from dolfinx import fem
         return self.comm.allreduce(fem.assemble_scalar(self.regularisation_work_form))
 

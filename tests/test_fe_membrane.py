@@ -16,14 +16,14 @@ from drape.membrane import PointContribution
 
 
 def _problem(comm, cell="quadrilateral", yarn_angle=0.0, pattern="aligned", contributions=None,
-             damping=1e-3, bending=0.0, size=10.0, length=40.0, width=30.0):
+             damping=1e-3, bending=0.0, size=10.0, length=40.0, width=30.0, inertia=False):
     from drape.membrane import MembraneProblem
     from drape.mesh import create_blank_mesh
     blank = BlankConfig(length=length, width=width, yarn_angle=yarn_angle)
     bm = create_blank_mesh(comm, blank, MeshConfig(cell=cell, pattern=pattern, size=size))
     law = NestedSurfaceLaw(MaterialParameters())
     return MembraneProblem(bm, law, yarn_angle, damping, contributions=contributions,
-                           bending_rigidity=bending)
+                           bending_rigidity=bending, inertia=inertia)
 
 
 def _set_displacement(problem, shear_deg=15.0):
@@ -88,6 +88,37 @@ def test_jacobian_is_the_derivative_of_the_residual(comm, cell, yarn_angle, patt
           f"|FD - J d| = {error.norm():.3g}")
     assert error.norm() <= 1e-8 * action.norm()
     assert error.norm() <= 1e-3 * shear.norm()
+
+
+def test_inertia_term_is_k_m_times_the_lag_behind_the_anchor(comm):
+    """With inertia the residual gains k_m (u - u_anchor) per unit area: a rigid translation c
+    off the anchor (no strain, so no internal force) gives a total force k_m c A, the
+    regularisation work 1/2 k_m |c|^2 A, and the Jacobian (k_m times the mass matrix) the
+    finite differences of the residual, on top of a strained state."""
+    k_m, c, area = 2.5, np.array([0.3, -0.2, 0.5]), 40.0 * 30.0
+    problem = _problem(comm, damping=0.0, inertia=True)
+    problem.inertia_constant.value = k_m
+    problem.u_anchor.x.array[:] = np.tile([1.0, 2.0, -3.0], problem.u.x.array.size // 3)
+    problem.u.x.array[:] = problem.u_anchor.x.array + np.tile(c, problem.u.x.array.size // 3)
+    b = _residual(problem, problem.u.vector)
+    n_owned = problem.V.dofmap.index_map.size_local
+    totals = comm.allreduce(b.array[: 3 * n_owned].reshape(-1, 3).sum(axis=0))
+    assert totals == pytest.approx(k_m * c * area, rel=1e-12)
+    assert problem.regularisation_work() == pytest.approx(0.5 * k_m * (c @ c) * area, rel=1e-12)
+
+    _set_displacement(problem)
+    x = problem.u.vector.copy()
+    direction = x.duplicate()
+    direction.array[:] = np.random.default_rng(comm.rank + 3).standard_normal(x.array.shape)
+    action = _jacobian_action(problem, x, direction)
+    plus, minus = x.copy(), x.copy()
+    plus.axpy(1e-6, direction)
+    minus.axpy(-1e-6, direction)
+    difference = _residual(problem, plus)
+    difference.axpy(-1.0, _residual(problem, minus))
+    difference.scale(0.5e6)
+    difference.axpy(-1.0, action)
+    assert difference.norm() <= 1e-8 * action.norm()
 
 
 class PlaneSpring(PointContribution):
