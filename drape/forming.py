@@ -318,8 +318,8 @@ class Forming:
                                         contact.friction, contact.slip_regularisation,
                                         self.process.contact_cutoff, self.smoothing)
         self.contributions = [self.tool_contact]
-        #: rho_A v^2 (N/mm) of the blank's inertia; 0: quasi-static (:meth:`predict`)
-        self.inertia = self.process.inertia()
+        #: the blank's mass per area (kg/m^2); 0: quasi-static (:meth:`predict`)
+        self.areal_density = self.process.areal_density
         #: force control of the holder (None: no holder, or a position-controlled STEP one)
         self.holder = None
         self._holder_force_controlled = force_controlled and "holder" in surfaces
@@ -327,8 +327,8 @@ class Forming:
         say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, holder force "
             f"{self.process.holder_force:g} N, penalty {self.penalty:.4g} N/mm^3 (smoothed over "
             f"{self.smoothing:.3g} mm), friction {contact.friction:g}"
-            + (f", inertia {self.process.areal_density:g} kg/m^2 at {self.process.punch_speed:g} "
-               f"m/s (rho_A v^2 = {self.inertia:.3g} N/mm)" if self.inertia > 0 else ""))
+            + (f", inertia {self.areal_density:g} kg/m^2, the punch at {self.process.punch_speed:g}"
+               f" m/s after {self.process.punch_ramp:g} mm" if self.areal_density > 0 else ""))
 
     # --- wiring ---------------------------------------------------------------------------------------
     def bind(self, problem) -> None:
@@ -357,12 +357,14 @@ class Forming:
         (without this, a step needs 15-25 Newton iterations instead of a handful). The first
         step is damped with :data:`SETTLING_DAMPING` unless the config sets a damping.
 
-        With inertia (rho_A v^2 = m > 0) the same extrapolation u* is the motion the blank
-        carries on with, and the problem gets the inertial force m u'' with the backward second
-        difference u'' = 2 (u - u*) / (ds (ds + ds')), ds and ds' this step's and the last
-        step's punch travel (exact for a motion quadratic in the stroke): k_m = 2 m / (ds (ds +
-        ds')) in N/mm^3. After the first step (which only settles the blank onto the die) the
-        blank starts from rest: u* the last step, ds' = ds. The first step has no inertia."""
+        With inertia (areal density rho_A > 0) the problem gets the inertial force rho_A u''
+        (u'' the acceleration in time: the punch travel s becomes time through
+        ``process.punch_time``), with the backward second difference over this step and the
+        last, u'' = 2 (u - u*) / (dtau (dtau + dtau')), dtau and dtau' their durations and u*
+        the last two steps' motion carried on in time (exact for a motion quadratic in time):
+        k = 2 rho_A / (dtau (dtau + dtau')) (1e-9 turns kg/m^2 mm/s^2 into N/mm^2). After the
+        first step (which only settles the blank onto the die, and has no inertia) the blank
+        starts from rest: u* the last step, dtau' = dtau."""
         p = self.problem
         t1, t0 = p.t_committed, p.t_previous
         first = t1 == 0.0 and p.damping == 0.0
@@ -373,11 +375,17 @@ class Forming:
             p.u.x.array[:] = u1 + (t - t1) / (t1 - t0) * (u1 - u0)
         if p.u_anchor is None:
             return
-        ds = self.stroke * (t - t1)
         from_rest = not moving or t0 == 0.0
-        ds_last = ds if from_rest else self.stroke * (t1 - t0)
-        p.inertia_constant.value = 0.0 if t1 == 0.0 else 2.0 * self.inertia / (ds * (ds + ds_last))
-        p.u_anchor.x.array[:] = p.u_committed.x.array if from_rest else p.u.x.array
+        time = self.process.punch_time
+        tau1 = time(self.stroke * t1)
+        dtau = time(self.stroke * t) - tau1
+        dtau_last = dtau if from_rest else tau1 - time(self.stroke * t0)
+        p.inertia_constant.value = (0.0 if t1 == 0.0 else
+                                    2e-9 * self.areal_density / (dtau * (dtau + dtau_last)))
+        p.u_anchor.x.array[:] = p.u_committed.x.array
+        if not from_rest:
+            p.u_anchor.x.array[:] += dtau / dtau_last * (u1 - u0)
+
 
     # --- per step ---------------------------------------------------------------------------------------
     def measure(self, t: float, converged: bool = True) -> dict:

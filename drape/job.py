@@ -213,14 +213,21 @@ class ProcessConfig:
     areal_density: float = setting(
         0.0, "the blank's mass per area, for its inertia (implicit dynamics, docs/forming.md, "
         "\"Inertia\"); 0: quasi-static, no inertia", non_negative, "kg/m^2")
-    punch_speed: float = setting(1.0, "the punch's constant speed, which turns the load steps "
-                                 "into time steps (used only with areal_density > 0)",
+    punch_speed: float = setting(1.0, "the punch's speed after its ramp, which turns the load "
+                                 "steps into time steps (used only with areal_density > 0)",
                                  positive, "m/s")
+    punch_ramp: float = setting(0.0, "punch travel over which the punch accelerates uniformly "
+                                "from rest to punch_speed (a smooth start instead of an impact "
+                                "on the blank at rest; used only with areal_density > 0)",
+                                non_negative, "mm")
 
-    def inertia(self) -> float:
-        """rho_A v^2 (N/mm): the inertial force per area is this times d^2u/ds^2 (1/mm), s the
-        punch travel (kg/m^2 * (m/s)^2 = N/m = 1e-3 N/mm)."""
-        return 1e-3 * self.areal_density * self.punch_speed ** 2
+    def punch_time(self, s: float) -> float:
+        """Time (s) at which the punch has travelled s mm: uniform acceleration from rest to
+        punch_speed v over punch_ramp s_r (s = v^2 tau^2 / (4 s_r)), then constant speed."""
+        v, ramp = 1e3 * self.punch_speed, self.punch_ramp          # mm/s, mm
+        if s < ramp:
+            return 2.0 * math.sqrt(s * ramp) / v
+        return (s + ramp) / v
 
 
 @dataclasses.dataclass(frozen=True)
