@@ -386,7 +386,6 @@ class Forming:
         if not from_rest:
             p.u_anchor.x.array[:] += dtau / dtau_last * (u1 - u0)
 
-
     # --- per step ---------------------------------------------------------------------------------------
     def measure(self, t: float, converged: bool = True) -> dict:
         """Forces (N), penetration (mm), contact areas (mm^2) at the converged state (collective).
