@@ -318,8 +318,6 @@ class Forming:
                                         contact.friction, contact.slip_regularisation,
                                         self.process.contact_cutoff, self.smoothing)
         self.contributions = [self.tool_contact]
-        #: the blank's mass per area (kg/m^2); 0: quasi-static (:meth:`predict`)
-        self.areal_density = self.process.areal_density
         #: force control of the holder (None: no holder, or a position-controlled STEP one)
         self.holder = None
         self._holder_force_controlled = force_controlled and "holder" in surfaces
@@ -327,8 +325,9 @@ class Forming:
         say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, holder force "
             f"{self.process.holder_force:g} N, penalty {self.penalty:.4g} N/mm^3 (smoothed over "
             f"{self.smoothing:.3g} mm), friction {contact.friction:g}"
-            + (f", inertia {self.areal_density:g} kg/m^2, the punch at {self.process.punch_speed:g}"
-               f" m/s after {self.process.punch_ramp:g} mm" if self.areal_density > 0 else ""))
+            + (f", inertia {self.process.areal_density:g} kg/m^2, the punch at "
+               f"{self.process.punch_speed:g} m/s after {self.process.punch_ramp:g} mm"
+               if self.process.areal_density > 0 else ""))
 
     # --- wiring ---------------------------------------------------------------------------------------
     def bind(self, problem) -> None:
@@ -381,7 +380,7 @@ class Forming:
         dtau = time(self.stroke * t) - tau1
         dtau_last = dtau if from_rest else tau1 - time(self.stroke * t0)
         p.inertia_constant.value = (0.0 if t1 == 0.0 else
-                                    2e-9 * self.areal_density / (dtau * (dtau + dtau_last)))
+                                    2e-9 * self.process.areal_density / (dtau * (dtau + dtau_last)))
         p.u_anchor.x.array[:] = p.u_committed.x.array
         if not from_rest:
             p.u_anchor.x.array[:] += dtau / dtau_last * (u1 - u0)

@@ -183,7 +183,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
                               contributions=forming.contributions if forming else None,
                               jit_params=jit_params,
                               bending_rigidity=config.bending.value(forming is not None),
-                              inertia=forming is not None and forming.areal_density > 0)
+                              inertia=forming is not None and config.process.areal_density > 0)
     if forming is not None:
         forming.bind(problem)
     motion = PrescribedMotion(problem.V, blank_mesh, loading)
