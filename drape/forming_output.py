@@ -82,24 +82,34 @@ def edge_points(blank) -> dict[str, tuple[float, float]]:
 
 
 def draw_in(problem, blank, comm) -> dict:
-    """Draw-in (mm) of the blank's edge at :func:`edge_points`: the in-plane displacement of the
-    node there towards the blank's centre, -u . X/|X| (positive: the edge moved in)."""
+    """Draw-in (mm) of the blank's edge at :func:`edge_points` (see :func:`edge_draw_in`)."""
     X = problem.V.tabulate_dof_coordinates()[:, :2]
     owned = problem.V.dofmap.index_map.size_local
-    X = X[:owned]
     u = problem.u.x.array.reshape(-1, 3)[:owned]
+    return {"draw_in_mm": edge_draw_in(X[:owned], u, edge_points(blank), comm)}
+
+
+def edge_draw_in(X, u, targets: dict, comm, tie: float = 1e-6) -> dict[str, float]:
+    """Draw-in (mm) at each target point of the edge: the in-plane displacement towards the
+    blank's centre, -u . X/|X|, of the node there. Where the point lies midway between nodes
+    (a mid-side when an edge has an even number of nodes), the mean over the nearest nodes
+    (within ``tie`` mm): the edge's linear interpolation at the point, so that a mirror-symmetric
+    field gives mirror-symmetric draw-ins. X (n, 2) and u (n, 3): this rank's owned nodes."""
     out = {}
-    for name, target in edge_points(blank).items():
-        target = np.asarray(target)
-        if owned:
+    for name, target in targets.items():
+        target = np.asarray(target, dtype=float)
+        radial = target / np.linalg.norm(target)
+        if len(X):
             d = np.linalg.norm(X - target, axis=1)
-            i = int(np.argmin(d))
-            radial = target / np.linalg.norm(target)
-            candidate = (float(d[i]), float(-(u[i, :2] @ radial)))
+            near = d <= d.min() + tie
+            candidate = (float(d.min()), float(np.sum(-(u[near, :2] @ radial))), int(near.sum()))
         else:
-            candidate = (np.inf, 0.0)
-        out[name] = min(comm.allgather(candidate))[1]
-    return {"draw_in_mm": out}
+            candidate = (np.inf, 0.0, 0)
+        everyone = comm.allgather(candidate)
+        nearest = min(c[0] for c in everyone)
+        picked = [c for c in everyone if c[0] <= nearest + tie]
+        out[name] = sum(c[1] for c in picked) / sum(c[2] for c in picked)
+    return out
 
 
 # --- rank 0 writers ----------------------------------------------------------------------------------

@@ -78,6 +78,25 @@ def test_penetration_stays_far_below_the_element_size(hemisphere):
         assert float(row["max_penetration"]) < 0.01 * h, row["step"]
 
 
+def test_draw_in_between_two_nodes_is_the_edge_interpolated_there(comm):
+    """A 200 mm edge with an even number of nodes has no node at its mid-side: the draw-in
+    there is the linear interpolation of the two nodes beside it (their mean), not whichever of
+    them a search meets first. The edge x = 100 moves in by 2 + 0.1 y mm (linear in y, so the
+    interpolation is exact: 2 mm at y = 0, with nodes at y = +-2.5 giving 1.75 and 2.25); the
+    corner (100, 100), a node, moves in along the diagonal by its own value. Under mpirun the
+    nodes are dealt out between the ranks, the two beside the mid-side on different ranks."""
+    from drape.forming_output import edge_draw_in
+    y = np.append(np.arange(-97.5, 100.0, 5.0), 100.0)   # nodes at +-2.5 beside y = 0
+    X = np.column_stack([np.full_like(y, 100.0), y])
+    u = np.zeros((y.size, 3))
+    u[:, 0] = -(2.0 + 0.1 * y)
+    u[-1, 1] = -1.0                                   # the corner also moves in along y
+    mine = np.arange(y.size) % comm.size == comm.rank
+    result = edge_draw_in(X[mine], u[mine], {"mid": (100.0, 0.0), "corner": (100.0, 100.0)},
+                          comm)
+    assert result["mid"] == pytest.approx(2.0, rel=1e-12)
+    assert result["corner"] == pytest.approx((12.0 + 1.0) / np.sqrt(2.0), rel=1e-12)
+
 def point_fields(folder):
     data = np.load(folder / "result.npz")
     return data["point_xy"], data["gamma_t_deg"]
