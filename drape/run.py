@@ -28,6 +28,12 @@ from pathlib import Path
 import numpy as np
 
 HELP = "run a forming job from a TOML config (serial or under mpirun)"
+# added to a quasi-static forming run's failure: where the steps shrink as the blank wrinkles
+# or snaps into a clearance, inertia carried the runs of docs/forming.md through
+INERTIA_HINT = ("; if the steps shrank where the blank wrinkles or is drawn into a narrow "
+                "clearance, the blank's inertia may carry it through: set process.areal_density "
+                "(kg/m^2, e.g. 1) and process.punch_speed (m/s, e.g. 3); docs/forming.md, "
+                "'Inertia'")
 
 
 def add_arguments(parser) -> None:
@@ -317,7 +323,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
                               f"t = {rows[-1]['t']:.6g}: results{' and checkpoint' if saved else ''}"
                               f" up to it are in {folder}") from None
         raise RunFailed(f"{failure}; results up to {last} are in {folder}"
-                        f"{' (with a checkpoint)' if saved else ''}") from None
+                        f"{' (with a checkpoint)' if saved else ''}"
+                        f"{INERTIA_HINT if forming and config.process.areal_density == 0 else ''}"
+                        ) from None
     finally:
         stop.uninstall()
         writer.close()

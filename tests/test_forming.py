@@ -78,6 +78,26 @@ def test_penetration_stays_far_below_the_element_size(hemisphere):
         assert float(row["max_penetration"]) < 0.01 * h, row["step"]
 
 
+@pytest.mark.parametrize("areal_density", [0.0, 1.0])
+def test_a_stalled_quasi_static_forming_run_suggests_the_blanks_inertia(tmp_path_factory,
+                                                                         areal_density):
+    """A forming run that cannot converge (here: one Newton iteration per step) fails naming
+    the step, and a quasi-static one (areal_density = 0) also names the keys that switch the
+    blank's inertia on; a run that has inertia already is not told to set it."""
+    from mpi4py import MPI
+
+    from drape.errors import RunFailed
+    folder = tmp_path_factory.mktemp("stalled") if MPI.COMM_WORLD.rank == 0 else None
+    folder = MPI.COMM_WORLD.bcast(folder, root=0)
+    with pytest.raises(RunFailed) as caught:
+        run("hemisphere.toml", folder, ["solver.max_iterations=1", "steps.minimum=0.02",
+                                        f"process.areal_density={areal_density}"])
+    message = str(caught.value)
+    assert message.startswith("step 1: Newton did not converge") and str(folder) in message
+    hint = "set process.areal_density (kg/m^2, e.g. 1) and process.punch_speed"
+    assert (hint in message) == (areal_density == 0.0), message
+
+
 def test_draw_in_between_two_nodes_is_the_edge_interpolated_there(comm):
     """A 200 mm edge with an even number of nodes has no node at its mid-side: the draw-in
     there is the linear interpolation of the two nodes beside it (their mean), not whichever of
