@@ -442,6 +442,10 @@ class Forming:
                 "max_punch_force_N": float(max(forces)),
                 "punch_force_at_end_N": float(forces[-1]),
                 "holder_force_N": self.process.holder_force,
+                # the blank's inertia: a dynamic run's forces depend on these (docs/forming.md)
+                "areal_density_kg_per_m2": self.process.areal_density,
+                "punch_speed_m_per_s": self.process.punch_speed,
+                "punch_ramp_mm": self.process.punch_ramp,
                 "max_penetration_mm": float(max(r.get("max_penetration", 0.0) for r in rows)),
                 "penalty_N_per_mm3": self.penalty,
                 "regularisation_share": rows[-1].get("regularisation_share", 0.0),

@@ -57,6 +57,8 @@ def test_outputs_of_a_forming_run(hemisphere):
     assert report["max_punch_force_N"] == pytest.approx(
         max(float(r["punch_force"]) for r in forces), rel=1e-12)
     assert report["max_punch_force_N"] > 0.0
+    assert report["areal_density_kg_per_m2"] == 0.0         # quasi-static, as shipped
+    assert (report["punch_speed_m_per_s"], report["punch_ramp_mm"]) == (1.0, 0.0)
     # vertical equilibrium of the blank (no other load on it after the first step, which alone
     # is damped: forming.SETTLING_DAMPING): die = punch + holder, to Newton's tolerance; the
     # force-controlled holder reaches its 200 N within a few steps and stays there
