@@ -301,8 +301,9 @@ def test_a_resumed_forming_run_equals_the_uninterrupted_one(tmp_path, inertia):
 def test_double_dome_configs_press_to_full_stroke(tmp_path, config):
     """The shipped double-dome jobs as they are (the tools' full 58 mm, with the blank's
     inertia, docs/forming.md "Inertia"): they reach the full stroke; the penetration stays
-    below 10 % of h (it peaks where punch and die squeeze the fabric through their 2 mm
-    clearance); the inertia's work stays a small share of the external work; the shear field
+    below 1 % of h, as on the hemisphere (measured 0 with the configs' penalty; where punch and
+    die squeeze the fabric through their 2 mm clearance a ten times softer penalty let it in by
+    5 % of h); the inertia's work stays a small share of the external work; the shear field
     has the tools' symmetry: the half turn about z exactly (gamma -> gamma, to Newton's
     tolerance, 1e-5 of the peak); the mirrors in x and y for +-45 exactly too (gamma -> gamma, warp and weft
     swapped); for 0/90 a mirror takes gamma to -gamma, which the law's odd terms and the
@@ -320,7 +321,7 @@ def test_double_dome_configs_press_to_full_stroke(tmp_path, config):
     report = json.loads((tmp_path / "summary.json").read_text())
     assert job.config.process.stroke is None
     assert report["stroke_mm"] == pytest.approx(full_stroke(job.config)) == pytest.approx(58.0)
-    assert report["max_penetration_mm"] < 0.1 * job.config.mesh.size
+    assert report["max_penetration_mm"] < 0.01 * job.config.mesh.size
     assert report["regularisation_share"] < 0.1
     xy, gamma = point_fields(tmp_path)
     top = np.abs(gamma).max()
