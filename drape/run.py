@@ -322,10 +322,10 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             raise Interrupted(f"{failure} received; stopped after step {rows[-1]['step']} at "
                               f"t = {rows[-1]['t']:.6g}: results{' and checkpoint' if saved else ''}"
                               f" up to it are in {folder}") from None
+        quasi_static_forming = forming is not None and config.process.areal_density == 0
         raise RunFailed(f"{failure}; results up to {last} are in {folder}"
                         f"{' (with a checkpoint)' if saved else ''}"
-                        f"{INERTIA_HINT if forming and config.process.areal_density == 0 else ''}"
-                        ) from None
+                        f"{INERTIA_HINT if quasi_static_forming else ''}") from None
     finally:
         stop.uninstall()
         writer.close()
