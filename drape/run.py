@@ -183,13 +183,14 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         raise error.located(str(job.path)) from None
     say(f"drape run: {job.path}: {blank_mesh.description}, {comm.size} rank(s)")
     law = NestedSurfaceLaw(job.params)
+    inertial = forming is not None and config.process.areal_density > 0
     loading = Loading.from_config(config, source=str(job.path))
     problem = MembraneProblem(blank_mesh, law, config.blank.yarn_angle,
                               config.regularisation.out_of_plane_damping,
                               contributions=forming.contributions if forming else None,
                               jit_params=jit_params,
                               bending_rigidity=config.bending.value(forming is not None),
-                              inertia=forming is not None and config.process.areal_density > 0)
+                              inertia=inertial)
     if forming is not None:
         forming.bind(problem)
     motion = PrescribedMotion(problem.V, blank_mesh, loading)
@@ -322,10 +323,10 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             raise Interrupted(f"{failure} received; stopped after step {rows[-1]['step']} at "
                               f"t = {rows[-1]['t']:.6g}: results{' and checkpoint' if saved else ''}"
                               f" up to it are in {folder}") from None
-        quasi_static_forming = forming is not None and config.process.areal_density == 0
         raise RunFailed(f"{failure}; results up to {last} are in {folder}"
                         f"{' (with a checkpoint)' if saved else ''}"
-                        f"{INERTIA_HINT if quasi_static_forming else ''}") from None
+                        f"{INERTIA_HINT if forming is not None and not inertial else ''}"
+                        ) from None
     finally:
         stop.uninstall()
         writer.close()
