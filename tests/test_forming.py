@@ -81,21 +81,17 @@ def test_penetration_stays_far_below_the_element_size(hemisphere):
 
 
 @pytest.mark.parametrize("areal_density", [0.0, 1.0])
-def test_a_stalled_quasi_static_forming_run_suggests_the_blanks_inertia(tmp_path_factory,
+def test_a_stalled_quasi_static_forming_run_suggests_the_blanks_inertia(shared_tmp,
                                                                          areal_density):
     """A forming run that cannot converge (here: one Newton iteration per step) fails naming
     the step, and a quasi-static one (areal_density = 0) also names the keys that switch the
     blank's inertia on; a run that has inertia already is not told to set it."""
-    from mpi4py import MPI
-
     from drape.errors import RunFailed
-    folder = tmp_path_factory.mktemp("stalled") if MPI.COMM_WORLD.rank == 0 else None
-    folder = MPI.COMM_WORLD.bcast(folder, root=0)
     with pytest.raises(RunFailed) as caught:
-        run("hemisphere.toml", folder, ["solver.max_iterations=1", "steps.minimum=0.02",
-                                        f"process.areal_density={areal_density}"])
+        run("hemisphere.toml", shared_tmp, ["solver.max_iterations=1", "steps.minimum=0.02",
+                                            f"process.areal_density={areal_density}"])
     message = str(caught.value)
-    assert message.startswith("step 1: Newton did not converge") and str(folder) in message
+    assert message.startswith("step 1: Newton did not converge") and str(shared_tmp) in message
     hint = "set process.areal_density (kg/m^2, e.g. 1) and process.punch_speed"
     assert (hint in message) == (areal_density == 0.0), message
 
@@ -118,6 +114,7 @@ def test_draw_in_between_two_nodes_is_the_edge_interpolated_there(comm):
                           comm)
     assert result["mid"] == pytest.approx(2.0, rel=1e-12)
     assert result["corner"] == pytest.approx((12.0 + 1.0) / np.sqrt(2.0), rel=1e-12)
+
 
 def point_fields(folder):
     data = np.load(folder / "result.npz")
@@ -305,12 +302,12 @@ def test_double_dome_configs_press_to_full_stroke(tmp_path, config):
     die squeeze the fabric through their 2 mm clearance a ten times softer penalty let it in by
     5 % of h); the inertia's work stays a small share of the external work; the shear field
     has the tools' symmetry: the half turn about z exactly (gamma -> gamma, to Newton's
-    tolerance, 1e-5 of the peak); the mirrors in x and y for +-45 exactly too (gamma -> gamma, warp and weft
-    swapped); for 0/90 a mirror takes gamma to -gamma, which the law's odd terms and the
-    wrinkles of the flange do not respect, so there the four quarters' largest shears must lie
-    at mirror images and agree within 5 %. 0/90: the largest shear lies where a kinematic drape
-    of the same ply on the die (drape.kinematic, a force-free method) shears most, at the
-    corners of the domes (its kinematic percentile > 90)."""
+    tolerance, 1e-5 of the peak); the mirrors in x and y for +-45 exactly too (gamma -> gamma,
+    warp and weft swapped); for 0/90 a mirror takes gamma to -gamma, which the law's odd terms
+    and the wrinkles of the flange do not respect, so there the four quarters' largest shears
+    must lie at mirror images and agree within 5 %. 0/90: the largest shear lies where a
+    kinematic drape of the same ply on the die (drape.kinematic, a force-free method) shears
+    most, at the corners of the domes (its kinematic percentile > 90)."""
     from drape.forming import full_stroke
     from drape.geometry.tools import analytic_double_dome_tools
     from drape.job import load_job
