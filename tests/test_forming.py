@@ -60,11 +60,14 @@ def test_outputs_of_a_forming_run(hemisphere):
     assert report["areal_density_kg_per_m2"] == 0.0         # quasi-static, as shipped
     assert (report["punch_speed_m_per_s"], report["punch_ramp_mm"]) == (1.0, 0.0)
     # vertical equilibrium of the blank (no other load on it after the first step, which alone
-    # is damped: forming.SETTLING_DAMPING): die = punch + holder, to Newton's tolerance; the
+    # is damped: forming.SETTLING_DAMPING): die = punch + holder, to Newton's tolerance, here
+    # the config's 1e-4 of a step's first residual, whose scale is the holder's force (to
+    # 1e-6 with 1e-10: test_the_forming_tolerance_gives_the_tight_tolerances_answer); the
     # force-controlled holder reaches its 200 N within a few steps and stays there
+    imbalance = job.config.solver.rtol * job.config.process.holder_force
     for row in steps[2:]:
         die, punch, holder = (float(row[f"{k}_force"]) for k in ("die", "punch", "holder"))
-        assert abs(die - punch - holder) < 1e-6 * die, row["step"]
+        assert abs(die - punch - holder) < imbalance, row["step"]
     for row in steps[4:]:
         assert float(row["holder_force"]) == pytest.approx(200.0, rel=0.01), row["step"]
     assert "contact_pressure" in (folder / "fields.xdmf").read_text()
@@ -131,6 +134,38 @@ def mirror_images(xy, gamma):
         assert d.max() < 1e-6
         return gamma[j]
     return mirrored
+
+
+def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp):
+    """The forming configs stop Newton at a residual 1e-4 of the step's first (solver.rtol).
+    On the same load steps (5 mm in fixed 0.5 mm steps) as a run converged to 1e-10:
+    - every step's forces within 1e-4 of the holder's 200 N, the largest external force, which
+      sets the scale of a step's first residual (the first step's punch force, 0.5 N, moves by
+      2e-3 N);
+    - the error does not pile up, since each step's residual is the whole out-of-balance force
+      (total Lagrangian): at 5 mm the punch force and the shear field within 1e-4 of their own
+      size;
+    - in fewer iterations (docs/forming.md, "Newton's tolerance")."""
+    fixed = ["steps.initial=0.1", "steps.maximum=0.1", "output.xdmf=false"]
+    job, loose = run("hemisphere.toml", shared_tmp / "loose", fixed)
+    assert job.config.solver.rtol == 1e-4
+    _, tight = run("hemisphere.toml", shared_tmp / "tight", fixed + ["solver.rtol=1e-10"])
+    assert [row["t"] for row in loose.rows] == [row["t"] for row in tight.rows]
+    for row in tight.rows[2:]:    # vertical equilibrium after the damped first step
+        assert abs(row["die_force"] - row["punch_force"] - row["holder_force"]) < (
+            1e-6 * row["die_force"]), row["step"]
+    holder = job.config.process.holder_force
+    for a, b in zip(loose.rows, tight.rows):
+        for key in ("punch_force", "holder_force"):
+            assert abs(a[key] - b[key]) < 1e-4 * holder, (a["step"], key)
+    end = tight.rows[-1]["punch_force"]
+    assert end > 1.0
+    assert abs(loose.rows[-1]["punch_force"] - end) < 1e-4 * end
+    gamma_loose = point_fields(shared_tmp / "loose")[1]
+    gamma_tight = point_fields(shared_tmp / "tight")[1]
+    assert np.abs(gamma_loose - gamma_tight).max() < 1e-4 * np.abs(gamma_tight).max()
+    iterations = [sum(row["newton_iterations"] for row in s.rows) for s in (loose, tight)]
+    assert iterations[0] < iterations[1]
 
 
 def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
@@ -305,7 +340,9 @@ def test_double_dome_configs_press_to_full_stroke(tmp_path, config):
     tolerance, 1e-5 of the peak); the mirrors in x and y for +-45 exactly too (gamma -> gamma,
     warp and weft swapped); for 0/90 a mirror takes gamma to -gamma, which the law's odd terms
     and the wrinkles of the flange do not respect, so there the four quarters' largest shears
-    must lie at mirror images and agree within 5 %. 0/90: the largest shear lies where a
+    must agree within 5 % and lie at mirror images, in the same element or the next (the
+    peak's region is flat to 1 % over an element, and the branch a wrinkle picks can move the
+    top of it to the neighbouring quadrature point, 7.46 mm away). 0/90: the largest shear lies where a
     kinematic drape of the same ply on the die (drape.kinematic, a force-free method) shears
     most, at the corners of the domes (its kinematic percentile > 90)."""
     from drape.forming import full_stroke
@@ -335,7 +372,8 @@ def test_double_dome_configs_press_to_full_stroke(tmp_path, config):
                 i = quarter[np.argmax(np.abs(gamma[quarter]))]
                 peaks.append((abs(gamma[i]), xy[i] * [sx, sy]))
         assert max(p for p, _ in peaks) < 1.05 * min(p for p, _ in peaks)
-        assert all(np.allclose(where, peaks[0][1], atol=1e-6) for _, where in peaks)
+        h = job.config.mesh.size
+        assert all(np.linalg.norm(where - peaks[0][1]) < 1.5 * h for _, where in peaks)
         tools = analytic_double_dome_tools(job.config.tools.double_dome)
         kinematic = drape_fishnet(tools["die"], (0.0, 0.0, -40.0), 0.0, 5.0, 60)
         comparison = compare_peaks(xy, gamma, kinematic)
