@@ -286,6 +286,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             forming.set_load(t)
             forming.predict(t)
         result = solver.solve()
+        if forming is not None:   # the holder's force within 1 %: the same step again
+            floor = solver.rtol * result.first_residual
+            result = forming.hold_force(t, lambda: solver.solve(floor), result)
         stop_if_requested()   # a signal during the attempt cut it short: not a failed step
         return result
 

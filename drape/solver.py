@@ -154,6 +154,7 @@ class SolveResult:
     reason: str
     residual: float
     seconds: float
+    first_residual: float = 0.0   #: the residual norm Newton started from
 
 
 class NewtonSolver:
@@ -185,6 +186,7 @@ class NewtonSolver:
         if config.linear == "iterative":
             self.A.setNearNullSpace(rigid_body_modes(problem.V))
             split_in_plane(problem.V, snes.getKSP().getPC())
+        snes.setConvergenceHistory(reset=True)   # its first entry: the residual started from
         snes.setFunction(self._residual, self.b)
         snes.setJacobian(problem.jacobian, self.A)
         snes.setFromOptions()
@@ -200,14 +202,25 @@ class NewtonSolver:
                 raise _Stop()
         self.problem.residual(snes, x, b)
 
-    def solve(self) -> SolveResult:
-        """Newton from the current displacement (the committed one) to the prescribed values."""
+    @property
+    def rtol(self) -> float:
+        """Newton's relative tolerance in force (solver.rtol, or a PETSc option's)."""
+        return self.snes.getTolerances()[0]
+
+    def solve(self, floor: float = 0.0) -> SolveResult:
+        """Newton from the current displacement (the committed one) to the prescribed values.
+
+        ``floor`` (N): a residual norm that counts as converged too, besides the tolerances; a
+        step solved again (the holder moved, :meth:`drape.forming.Forming.hold_force`) passes
+        rtol times the step's first residual, so that it stops where the first solve would have."""
         from petsc4py import PETSc
         start = time.perf_counter()
         u = self.problem.u
         u.vector.copy(self.x)
         self.problem.nonfinite.clear()
         self.stopped = False
+        rtol, atol, stol, max_it = self.snes.getTolerances()
+        self.snes.setTolerances(atol=max(atol, floor))
         try:
             self.snes.solve(None, self.x)
             reason = self.snes.getConvergedReason()
@@ -217,6 +230,9 @@ class NewtonSolver:
             reason, failure = -100, "interrupted" if self.stopped else str(error)
         else:
             failure = None
+        finally:
+            self.snes.setTolerances(atol=atol)
+        history = self.snes.getConvergenceHistory()[0]
         self.x.copy(u.vector)
         u.x.scatter_forward()
         residual = self.snes.getFunctionNorm()
@@ -227,7 +243,8 @@ class NewtonSolver:
             reason = min(reason, -1)
             name = nonfinite_reason(nonfinite)
         return SolveResult(reason > 0, self.snes.getIterationNumber(), name, float(residual),
-                           time.perf_counter() - start)
+                           time.perf_counter() - start,
+                           float(history[0]) if len(history) else float(residual))
 
     def close(self) -> None:
         from petsc4py import PETSc
