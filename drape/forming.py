@@ -441,9 +441,9 @@ class Forming:
         the holder and ``solve()`` again from there, at most HOLDER_CORRECTIONS times
         (collective). The first move changes the target force by the difference (the flat
         flange carries the target, plus what wrinkles or the flange's edge add, which changes
-        little when it moves), the next ones by a secant step. Returns
-        the last result with the iterations and seconds of all; a failed re-solve fails the
-        attempt, and the target goes back to what it was."""
+        little when it moves), the next ones by a secant step. Returns the last result with
+        the iterations and seconds of all; a failed re-solve fails the attempt, and the target
+        goes back to what it was."""
         holder = self.holder
         if holder is None or not result.converged:
             return result

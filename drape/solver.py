@@ -219,7 +219,7 @@ class NewtonSolver:
         u.vector.copy(self.x)
         self.problem.nonfinite.clear()
         self.stopped = False
-        rtol, atol, stol, max_it = self.snes.getTolerances()
+        atol = self.snes.getTolerances()[1]
         self.snes.setTolerances(atol=max(atol, floor))
         try:
             self.snes.solve(None, self.x)
