@@ -418,9 +418,7 @@ class Forming:
         row = {"stroke": self.stroke * t}
         penetration = 0.0
         for name, (gap, response) in self.tool_contact.last.items():
-            force = comm.allreduce(response.traction.T @ A) * converged
-            # punch and holder press down, the die up: each force positive in its own direction
-            row[f"{name}_force"] = force[2] if name == "die" else -force[2]
+            row[f"{name}_force"] = self.tool_force(name) * converged
             row[f"{name}_contact_area"] = comm.allreduce(
                 float(A[response.pressure > 0].sum())) * converged
             penetration = max(penetration, float(-gap.min()) if gap.size and converged else 0.0)
@@ -430,10 +428,12 @@ class Forming:
         self.force_rows.append(row)
         return row
 
-    def holder_force(self) -> float:
-        """The holder's force (N, pressing down) at the last residual evaluation (collective)."""
-        _, response = self.tool_contact.last["holder"]
-        return -float(self.comm.allreduce(response.traction.T @ self.areas)[2])
+    def tool_force(self, name: str) -> float:
+        """The force (N) of tool ``name`` on the blank at the last residual evaluation, positive
+        in its own direction: punch and holder press down, the die up (collective)."""
+        _, response = self.tool_contact.last[name]
+        force_z = float(self.comm.allreduce(response.traction.T @ self.areas)[2])
+        return force_z if name == "die" else -force_z
 
     def hold_force(self, t: float, solve, result):
         """After an attempt at load factor t (``result``, a SolveResult): while it converged and
@@ -450,7 +450,7 @@ class Forming:
         start, iterations, seconds = holder.target, result.iterations, result.seconds
         last = None                     # (target, measured) of the solve before
         for _ in range(HOLDER_CORRECTIONS):
-            measured = self.holder_force()
+            measured = self.tool_force("holder")
             error = holder.force - measured
             if abs(error) <= HOLDER_TOLERANCE * holder.force:
                 break

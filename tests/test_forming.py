@@ -287,12 +287,12 @@ def test_the_holder_is_moved_until_its_force_is_within_one_percent(offset, slope
     F = 200.0
     holder = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1)
     flange = SimpleNamespace(holder=holder, loads=[],
-                             holder_force=lambda: offset + slope * holder.target)
+                             tool_force=lambda name: offset + slope * holder.target)
     flange.set_load = flange.loads.append
     solved = SolveResult(True, 7, "CONVERGED_FNORM_RELATIVE", 1e-3, 1.0)
     again = SolveResult(True, 2, "CONVERGED_FNORM_ABS", 1e-3, 0.5)
     result = Forming.hold_force(flange, 0.3, lambda: again, solved)
-    assert flange.holder_force() - F == pytest.approx(error, abs=1e-9)
+    assert flange.tool_force("holder") - F == pytest.approx(error, abs=1e-9)
     assert abs(error) <= HOLDER_TOLERANCE * F
     assert flange.loads == [0.3] * moves
     assert (result.converged, result.iterations, result.seconds) == (
@@ -407,9 +407,9 @@ def test_double_dome_configs_press_to_full_stroke(tmp_path, config):
     and the wrinkles of the flange do not respect, so there the four quarters' largest shears
     must agree within 5 % and lie at mirror images, in the same element or the next (the
     peak's region is flat to 1 % over an element, and the branch a wrinkle picks can move the
-    top of it to the neighbouring quadrature point, 7.46 mm away). 0/90: the largest shear lies where a
-    kinematic drape of the same ply on the die (drape.kinematic, a force-free method) shears
-    most, at the corners of the domes (its kinematic percentile > 90)."""
+    top of it to the neighbouring quadrature point, 7.46 mm away). 0/90: the largest shear
+    lies where a kinematic drape of the same ply on the die (drape.kinematic, a force-free
+    method) shears most, at the corners of the domes (its kinematic percentile > 90)."""
     from drape.forming import full_stroke
     from drape.geometry.tools import analytic_double_dome_tools
     from drape.job import load_job
