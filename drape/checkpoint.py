@@ -146,7 +146,9 @@ class Checkpoints:
                                       else p.t_previous]),
                  "gamma_p": p.gamma_p.x.array.copy(),
                  "gamma_max": p.gamma_max.x.array.copy(),
-                 "centres": np.array([c.x.array for c in p.centres]).reshape(len(p.centres), -1),
+                 # (n, points): n = 0 when the job keeps only the outer surface (surfaces = 0)
+                 "centres": np.array([c.x.array for c in p.centres]).reshape(
+                     len(p.centres), p.gamma_p.x.array.size),
                  "ledger_f": _array(self.ledger["f"]), "ledger_g": _array(self.ledger["g"])}
         for i, contribution in enumerate(p.contributions):
             for key, value in contribution.state().items():

@@ -166,15 +166,20 @@ def test_sigterm_then_resume_gives_the_uninterrupted_result(tmp_path, ranks):
 
 
 @pytest.mark.serial
-@pytest.mark.parametrize("torn", [False, True])
-def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path, torn):
+@pytest.mark.parametrize("torn, surfaces", [(False, []), (True, []),
+                                            (False, ["--set", "surfaces=0"])],
+                         ids=["whole", "torn", "outer-surface-only"])
+def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path, torn, surfaces):
     """SIGKILL leaves steps after the last periodic checkpoint in steps.csv and fields.xdmf/h5:
     the resume drops them and writes them again, once. ``torn``: the kill came while a step's
     fields were being written and left fields.h5 unreadable (here: cut to two thirds of its
-    length); the resume takes the checkpointed steps' fields from the checkpoint's copy."""
+    length); the resume takes the checkpointed steps' fields from the checkpoint's copy.
+    ``surfaces = 0`` (the outer surface alone: the law has no centres to keep) once failed
+    writing its first checkpoint."""
     folder, uninterrupted = tmp_path / "killed", tmp_path / "uninterrupted"
+    short = [*SHORT, *surfaces]
     process = subprocess.Popen(command("run", CONFIGS / "bias_extension.toml", "--output", folder,
-                                       *SHORT), cwd=REPO, env=ENV, stderr=subprocess.DEVNULL)
+                                       *short), cwd=REPO, env=ENV, stderr=subprocess.DEVNULL)
     while not (folder / "checkpoint.npz").exists() and process.poll() is None:
         time.sleep(0.01)
     while len(read_steps(folder)) < 9 and process.poll() is None:   # past the checkpoint
@@ -186,9 +191,9 @@ def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path,
     if torn:
         h5 = folder / "fields.h5"
         os.truncate(h5, 2 * h5.stat().st_size // 3)
-    done = drape("run", CONFIGS / "bias_extension.toml", "--output", folder, *SHORT, "--resume")
+    done = drape("run", CONFIGS / "bias_extension.toml", "--output", folder, *short, "--resume")
     assert done.returncode == 0, done.stderr
-    full = drape("run", CONFIGS / "bias_extension.toml", "--output", uninterrupted, *SHORT)
+    full = drape("run", CONFIGS / "bias_extension.toml", "--output", uninterrupted, *short)
     assert full.returncode == 0, full.stderr
     check_same_as_uninterrupted(folder, uninterrupted)
     # a finished run's fields.h5 is whole: the copy is removed
