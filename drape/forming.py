@@ -57,6 +57,10 @@ HOLDER_CORRECTIONS = 3
 #: measured force against the target, at least this: where the fabric pushes the holder at its
 #: rim the force answers a lift by a small fraction of it (double dome: 0.01-0.1)
 HOLDER_LEAST_SLOPE = 0.005
+#: and at most this: where the holder's rim presses the fabric drawn over the die's fillet the
+#: force grows faster than the target (hemisphere +-45: 1.6-1.8), and a slope kept at 1 made
+#: the moves overshoot by as much as they corrected, back and forth
+HOLDER_MOST_SLOPE = 10.0
 
 
 # --- validation of a forming job -------------------------------------------------------------------
@@ -457,7 +461,7 @@ class Forming:
             slope = 1.0                 # d measured / d target: 1 for the flat flange alone
             if last is not None and holder.target != last[0]:
                 slope = (measured - last[1]) / (holder.target - last[0])
-                slope = min(max(slope, HOLDER_LEAST_SLOPE), 1.0)   # the secant's, kept sane
+                slope = min(max(slope, HOLDER_LEAST_SLOPE), HOLDER_MOST_SLOPE)
             last = (holder.target, measured)
             holder.target += error / slope
             self.set_load(t)
