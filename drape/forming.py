@@ -447,17 +447,22 @@ class Forming:
         flange carries the target, plus what wrinkles or the flange's edge add, which changes
         little when it moves), the next ones by a secant step. Returns the last result with
         the iterations and seconds of all; a failed re-solve fails the attempt, and the target
-        goes back to what it was."""
+        goes back to what it was. When all the moves are spent, the solve closest to F is kept:
+        where the holder comes down from resting on the wrinkles at its rim onto the flat flange
+        the force jumps, and the last move may land farther off than an earlier one."""
         holder = self.holder
         if holder is None or not result.converged:
             return result
         start, iterations, seconds = holder.target, result.iterations, result.seconds
         last = None                     # (target, measured) of the solve before
+        closest = None                  # (|error|, target, displacement, result) of the best solve
         for _ in range(HOLDER_CORRECTIONS):
             measured = self.tool_force("holder")
             error = holder.force - measured
             if abs(error) <= HOLDER_TOLERANCE * holder.force:
                 break
+            if closest is None or abs(error) < closest[0]:
+                closest = (abs(error), holder.target, self.problem.u.x.array.copy(), result)
             slope = 1.0                 # d measured / d target: 1 for the flat flange alone
             if last is not None and holder.target != last[0]:
                 slope = (measured - last[1]) / (holder.target - last[0])
@@ -471,6 +476,12 @@ class Forming:
                 holder.target = start
                 self.set_load(t)
                 break
+        else:
+            if abs(holder.force - self.tool_force("holder")) > closest[0]:
+                _, holder.target, displacement, result = closest
+                self.set_load(t)
+                self.problem.u.x.array[:] = displacement
+                self.problem.evaluate()     # the law's and the tools' state there again
         return dataclasses.replace(result, iterations=iterations, seconds=seconds)
 
     def control_holder(self, row: dict) -> None:

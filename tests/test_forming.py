@@ -290,7 +290,9 @@ def test_the_holder_is_moved_until_its_force_is_within_one_percent(offset, slope
     F = 200.0
     holder = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1)
     flange = SimpleNamespace(holder=holder, loads=[],
-                             tool_force=lambda name: offset + slope * holder.target)
+                             tool_force=lambda name: offset + slope * holder.target,
+                             problem=SimpleNamespace(u=SimpleNamespace(x=SimpleNamespace(
+                                 array=np.zeros(1))), evaluate=lambda: None))
     flange.set_load = flange.loads.append
     solved = SolveResult(True, 7, "CONVERGED_FNORM_RELATIVE", 1e-3, 1.0)
     again = SolveResult(True, 2, "CONVERGED_FNORM_ABS", 1e-3, 0.5)
@@ -306,6 +308,48 @@ def test_the_holder_is_moved_until_its_force_is_within_one_percent(offset, slope
     result = Forming.hold_force(flange, 0.3, lambda: failed, solved)
     assert not result.converged and result.iterations == 27
     assert holder.target == F                                 # as it was before the attempt
+
+
+def test_the_holder_keeps_the_solve_closest_to_its_force_when_the_moves_are_spent():
+    """Forming.hold_force on a flange whose force jumps (the holder coming down from the
+    wrinkles at its rim onto the flat flange): measured 230, 205, 197.5 and, after the third
+    move, 260 N for F = 200 N. The step keeps the third solve (2.5 N off): its displacement,
+    its holder target and its result, with the iterations of all four solves."""
+    from types import SimpleNamespace
+
+    from drape.forming import HOLDER_CORRECTIONS, Forming, HolderControl
+    from drape.solver import SolveResult
+    assert HOLDER_CORRECTIONS == 3
+    F = 200.0
+    holder = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1)
+    forces = iter([230.0, 205.0, 197.5, 260.0])
+    state = {"force": next(forces), "solves": 0, "evaluated": 0}
+    u = SimpleNamespace(x=SimpleNamespace(array=np.zeros(4)))
+
+    def solve():
+        state["solves"] += 1
+        state["force"] = next(forces)
+        u.x.array[:] = state["solves"]            # each solve's displacement tells it apart
+        return SolveResult(True, 10 + state["solves"], "CONVERGED_FNORM_ABS", 1e-3, 1.0)
+
+    def evaluate():
+        state["evaluated"] += 1
+
+    flange = SimpleNamespace(holder=holder, loads=[], tool_force=lambda name: state["force"],
+                             problem=SimpleNamespace(u=u, evaluate=evaluate))
+    flange.set_load = lambda t: flange.loads.append((t, holder.target))
+    first = SolveResult(True, 7, "CONVERGED_FNORM_RELATIVE", 1e-3, 1.0)
+    result = Forming.hold_force(flange, 0.3, solve, first)
+    assert state["solves"] == 3
+    targets = [target for _, target in flange.loads]
+    assert targets[0] == pytest.approx(F - 30.0)               # the first move: F - measured
+    assert holder.target == targets[1]                         # the second move's, restored
+    assert flange.loads[-1] == (0.3, targets[1])               # and the tools set there
+    np.testing.assert_array_equal(u.x.array, 2.0)              # the second re-solve's state
+    assert state["evaluated"] == 1                             # its law and contact again
+    assert (result.converged, result.iterations, result.reason) == (
+        True, 7 + 11 + 12 + 13, "CONVERGED_FNORM_ABS")
+    assert result.seconds == pytest.approx(4.0)
 
 
 def test_the_holder_lifts_as_far_as_its_force_needs():
