@@ -74,6 +74,82 @@ def test_outputs_of_a_forming_run(hemisphere):
     assert "contact_pressure" in (folder / "fields.xdmf").read_text()
 
 
+def test_the_forming_jacobian_is_the_derivative_of_the_residual(shared_tmp):
+    """At the last step of a 5 mm hemisphere run (punch, die and holder in contact), half a
+    step on (Newton's ground), the assembled Jacobian's action J d against central differences
+    of the residual, in three directions d:
+
+    - the step's increment (the membrane, the law, the hinges and the tools together): within
+      5e-4 of |J d| (measured 6.5e-5);
+    - the whole blank moved 1 mm down: the membrane's and the hinges' part of J d vanishes (a
+      rigid translation strains nothing), so J d is the tools' stiffness alone, and it must be
+      the differences' to 1e-4 (measured 2.1e-5);
+    - the whole blank moved 1 mm along x: within 2e-2 (measured 8.8e-3). This is what the
+      contact tangent leaves out, the turning of the tool's normal (p dn/du,
+      drape/contact.py, docs/benchmarks.md)."""
+    from mpi4py import MPI
+    from petsc4py import PETSc
+
+    from drape.job import load_job
+    from drape.run import run_job
+    comm = MPI.COMM_WORLD
+    job = load_job(CONFIGS / "hemisphere.toml", overrides=SHORT + ["output.xdmf=false"])
+    found = {}
+
+    def ghosted(vector):
+        vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        return vector
+
+    def check(row, p):
+        if row["t"] < 1.0 - 1e-12:
+            return
+        increment = p.u_committed.vector.copy()
+        increment.axpy(-1.0, p.u_previous.vector)
+        x = p.u_committed.vector.copy()
+        x.axpy(0.5, increment)
+        ghosted(x)
+        directions = {"increment": ghosted(increment)}
+        for name, step in (("down", [0.0, 0.0, -1.0]), ("along x", [1.0, 0.0, 0.0])):
+            d = x.duplicate()
+            d.array[:] = np.tile(step, d.array.size // 3)
+            directions[name] = ghosted(d)
+        A, b = p.create_matrix(), p.create_vector()
+        for name, d in directions.items():
+            eps = 1e-6
+            plus, minus = ghosted(x.copy()), ghosted(x.copy())
+            plus.axpy(eps, d)
+            minus.axpy(-eps, d)
+            difference, other = p.create_vector(), p.create_vector()
+            p.residual(None, ghosted(plus), difference)
+            p.residual(None, ghosted(minus), other)
+            difference.axpy(-1.0, other)
+            difference.scale(0.5 / eps)
+            actions = []
+            for without_tools in (False, True):
+                p.residual(None, x, b)           # the law's and the tools' state at x
+                if without_tools:
+                    for _, _, stiffness, _, _ in p._contribution_data:
+                        stiffness.x.array[:] = 0.0
+                A.zeroEntries()
+                p.jacobian(None, x, A, A)
+                actions.append(A.createVecLeft())
+                A.mult(d, actions[-1])
+            full, bare = actions
+            difference.axpy(-1.0, full)
+            found[name] = [v.norm(PETSc.NormType.INFINITY) for v in (full, bare, difference)]
+
+    run_job(job, comm, output=str(shared_tmp / "jacobian"), on_step=check)
+    for name, (size, bare, error) in found.items():
+        print(f"\n{name}: |J d| = {size:.4g}, without the tools {bare:.3g}, "
+              f"|FD - J d| = {error:.3g}")
+    size, _, error = found["increment"]
+    assert error <= 5e-4 * size
+    size, bare, error = found["down"]
+    assert size > 1.0 and bare <= 1e-9 * size and error <= 1e-4 * size
+    size, bare, error = found["along x"]
+    assert size > 0.1 and bare <= 1e-9 * size and error <= 2e-2 * size
+
+
 def test_penetration_stays_far_below_the_element_size(hemisphere):
     """The smoothed penalty pushes from g0 = 0.05 h off a tool's surface and reaches the plain
     penalty's slope at the surface (docs/forming.md); at the pressures of these runs the fabric
