@@ -13,6 +13,7 @@ from drape.job import BlankConfig, MeshConfig, load_job
 from drape.law.nested_surface import NestedSurfaceLaw
 from drape.law.parameters import MaterialParameters
 from drape.membrane import PointContribution
+from fe_helpers import central_difference, jacobian_action, residual
 
 
 def _problem(comm, cell="quadrilateral", yarn_angle=0.0, pattern="aligned", contributions=None,
@@ -40,20 +41,6 @@ def _set_displacement(problem, shear_deg=15.0):
     return field
 
 
-def _residual(problem, x):
-    b = problem.create_vector()
-    problem.residual(None, x, b)
-    return b
-
-
-def _jacobian_action(problem, x, direction):
-    A = problem.create_matrix()
-    problem.jacobian(None, x, A, A)
-    out = A.createVecLeft()
-    A.mult(direction, out)
-    return out
-
-
 @pytest.mark.parametrize("cell, yarn_angle, pattern, bending", [
     ("quadrilateral", 0.0, "aligned", 0.0), ("triangle", 30.0, "free", 0.0),
     ("quadrilateral", 0.0, "aligned", 2.0), ("triangle", 30.0, "free", 2.0)])
@@ -64,15 +51,9 @@ def test_jacobian_is_the_derivative_of_the_residual(comm, cell, yarn_angle, patt
     rng = np.random.default_rng(comm.rank + 7)
     direction = x.duplicate()
     direction.array[:] = rng.standard_normal(direction.array.shape)
-    action = _jacobian_action(problem, x, direction)
+    action = jacobian_action(problem, x, direction)
     assert np.all(problem.response.active_surface >= 0)        # plastic at every point
-    eps = 1e-6
-    plus, minus = x.copy(), x.copy()
-    plus.axpy(eps, direction)
-    minus.axpy(-eps, direction)
-    difference = _residual(problem, plus)
-    difference.axpy(-1.0, _residual(problem, minus))
-    difference.scale(1.0 / (2 * eps))
+    difference = central_difference(problem, x, direction)
     error = difference.copy()
     error.axpy(-1.0, action)
     # the same Jacobian without the law's shear tangent: what the law contributes
@@ -100,7 +81,7 @@ def test_inertia_term_is_k_m_times_the_lag_behind_the_anchor(comm):
     problem.inertia_constant.value = k_m
     problem.u_anchor.x.array[:] = np.tile([1.0, 2.0, -3.0], problem.u.x.array.size // 3)
     problem.u.x.array[:] = problem.u_anchor.x.array + np.tile(c, problem.u.x.array.size // 3)
-    b = _residual(problem, problem.u.vector)
+    b = residual(problem, problem.u.vector)
     n_owned = problem.V.dofmap.index_map.size_local
     totals = comm.allreduce(b.array[: 3 * n_owned].reshape(-1, 3).sum(axis=0))
     assert totals == pytest.approx(k_m * c * area, rel=1e-12)
@@ -110,13 +91,8 @@ def test_inertia_term_is_k_m_times_the_lag_behind_the_anchor(comm):
     x = problem.u.vector.copy()
     direction = x.duplicate()
     direction.array[:] = np.random.default_rng(comm.rank + 3).standard_normal(x.array.shape)
-    action = _jacobian_action(problem, x, direction)
-    plus, minus = x.copy(), x.copy()
-    plus.axpy(1e-6, direction)
-    minus.axpy(-1e-6, direction)
-    difference = _residual(problem, plus)
-    difference.axpy(-1.0, _residual(problem, minus))
-    difference.scale(0.5e6)
+    action = jacobian_action(problem, x, direction)
+    difference = central_difference(problem, x, direction)
     difference.axpy(-1.0, action)
     assert difference.norm() <= 1e-8 * action.norm()
 
@@ -150,8 +126,8 @@ def test_point_contributions_enter_residual_and_jacobian(comm):
     for problem in (plain, spring):
         _set_displacement(problem)
     x = spring.u.vector.copy()
-    difference = _residual(spring, x)
-    difference.axpy(-1.0, _residual(plain, x))
+    difference = residual(spring, x)
+    difference.axpy(-1.0, residual(plain, x))
     # the same spring written in UFL, at the same (degree 2) quadrature
     u, v = spring.u, ufl.TestFunction(spring.V)
     X = ufl.SpatialCoordinate(spring.mesh)
@@ -165,8 +141,8 @@ def test_point_contributions_enter_residual_and_jacobian(comm):
     # Jacobians: the difference is the derivative of the spring term
     direction = x.duplicate()
     direction.array[:] = np.random.default_rng(comm.rank).standard_normal(direction.array.shape)
-    jd = _jacobian_action(spring, x, direction)
-    jd.axpy(-1.0, _jacobian_action(plain, x, direction))
+    jd = jacobian_action(spring, x, direction)
+    jd.axpy(-1.0, jacobian_action(plain, x, direction))
     K = fpetsc.assemble_matrix(fem.form(ufl.derivative(k * gap * v[2] * dx, u, ufl.TrialFunction(spring.V))))
     K.assemble()
     kd = K.createVecLeft()
@@ -271,8 +247,8 @@ def test_bending_energy_of_a_cylinder_is_the_plate_energy(comm, cell):
     problem.u.interpolate(lambda x: (rotation @ x) - x + np.array([[3.0], [-2.0], [5.0]]))
     problem.u.x.scatter_forward()
     assert abs(problem.bending_energy()) < 1e-12
-    with_bending = _residual(problem, problem.u.vector)
-    without = _residual(_moved_like(problem, comm, cell), problem.u.vector)
+    with_bending = residual(problem, problem.u.vector)
+    without = residual(_moved_like(problem, comm, cell), problem.u.vector)
     with_bending.axpy(-1.0, without)
     assert with_bending.norm() < 1e-10
 
