@@ -50,12 +50,15 @@ SETTLING_DAMPING = 1e-3
 #: a converged step's holder force must be within this fraction of process.holder_force, else
 #: the step is solved again with the holder moved (:meth:`Forming.hold_force`), at most
 #: HOLDER_CORRECTIONS times: with 1 mm steps in the locking stage the force drifted to 7 % over
-#: F between the per-step corrections (docs/forming.md, "Blank holder")
+#: F between the per-step corrections (docs/forming.md, "Blank holder"). Six, not three: where
+#: the holder comes down from the wrinkles at its rim onto the flat flange the force bends
+#: sharply, and closing in on F inside the bracket takes more moves (most steps need one or two)
 HOLDER_TOLERANCE = 0.01
-HOLDER_CORRECTIONS = 3
-#: the re-solves after the first move the target by the error over the secant's slope of the
-#: measured force against the target, at least this: where the fabric pushes the holder at its
-#: rim the force answers a lift by a small fraction of it (double dome: 0.01-0.1)
+HOLDER_CORRECTIONS = 6
+#: until the force has been seen on both sides of F, the re-solves after the first move the
+#: target by the error over the secant's slope of the measured force against the target, at
+#: least this: where the fabric pushes the holder at its rim the force answers a lift by a
+#: small fraction of it (double dome: 0.01-0.1)
 HOLDER_LEAST_SLOPE = 0.005
 #: and at most this: where the holder's rim presses the fabric drawn over the die's fillet the
 #: force grows faster than the target (hemisphere +-45: 1.6-1.8), and a slope kept at 1 made
@@ -299,6 +302,35 @@ class HolderControl:
         self.target += self.GAIN * (self.force - measured)
 
 
+class _Bracket:
+    """The holder targets F' whose measured force came closest to F from below (error F -
+    measured > 0) and from above (< 0), for :meth:`Forming.hold_force`'s regula falsi."""
+
+    def __init__(self):
+        self.below = self.above = None      # [target, error]
+        self.kept = None                    # which end the last new point did not replace
+
+    def add(self, target: float, error: float) -> None:
+        side = "below" if error > 0.0 else "above"
+        end = getattr(self, side)
+        if end is None or abs(error) < abs(end[1]) or self.closed:
+            setattr(self, side, [target, error])
+        other = "above" if side == "below" else "below"
+        if self.closed:
+            if self.kept == other:          # the other end kept twice running: halve its error
+                getattr(self, other)[1] *= 0.5
+            self.kept = other
+
+    @property
+    def closed(self) -> bool:
+        return self.below is not None and self.above is not None
+
+    def inside(self) -> float:
+        """The target where the line through the two ends meets F."""
+        (t0, e0), (t1, e1) = self.below, self.above
+        return t0 + e0 * (t1 - t0) / (e0 - e1)
+
+
 # --- the forming job -------------------------------------------------------------------------------
 
 class Forming:
@@ -445,17 +477,22 @@ class Forming:
         the holder and ``solve()`` again from there, at most HOLDER_CORRECTIONS times
         (collective). The first move changes the target force by the difference (the flat
         flange carries the target, plus what wrinkles or the flange's edge add, which changes
-        little when it moves), the next ones by a secant step. Returns the last result with
-        the iterations and seconds of all; a failed re-solve fails the attempt, and the target
-        goes back to what it was. When all the moves are spent, the solve closest to F is kept:
-        where the holder comes down from resting on the wrinkles at its rim onto the flat flange
-        the force jumps, and the last move may land farther off than an earlier one."""
+        little when it moves), the next ones by a secant step, until the force has been
+        measured both below and above F. From then on the target stays inside that bracket
+        (the force grows with the target, so the bracket holds the answer), at its regula
+        falsi point (Illinois: the end kept twice running has its error halved, so that a
+        curved response does not stall it). Returns the last result with the iterations and
+        seconds of all; a failed re-solve fails the attempt, and the target goes back to what
+        it was. When all the moves are spent, the solve closest to F is kept: where the holder
+        comes down from resting on the wrinkles at its rim onto the flat flange the force
+        bends sharply, and the last move may land farther off than an earlier one."""
         holder = self.holder
         if holder is None or not result.converged:
             return result
         start, iterations, seconds = holder.target, result.iterations, result.seconds
         last = None                     # (target, measured) of the solve before
         closest = None                  # (|error|, target, displacement, result) of the best solve
+        bracket = _Bracket()
         for _ in range(HOLDER_CORRECTIONS):
             measured = self.tool_force("holder")
             error = holder.force - measured
@@ -463,12 +500,17 @@ class Forming:
                 break
             if closest is None or abs(error) < closest[0]:
                 closest = (abs(error), holder.target, self.problem.u.x.array.copy(), result)
-            slope = 1.0                 # d measured / d target: 1 for the flat flange alone
-            if last is not None and holder.target != last[0]:
-                slope = (measured - last[1]) / (holder.target - last[0])
-                slope = min(max(slope, HOLDER_LEAST_SLOPE), HOLDER_MOST_SLOPE)
+            bracket.add(holder.target, error)
+            if bracket.closed:
+                target = bracket.inside()
+            else:
+                slope = 1.0             # d measured / d target: 1 for the flat flange alone
+                if last is not None and holder.target != last[0]:
+                    slope = (measured - last[1]) / (holder.target - last[0])
+                    slope = min(max(slope, HOLDER_LEAST_SLOPE), HOLDER_MOST_SLOPE)
+                target = holder.target + error / slope
             last = (holder.target, measured)
-            holder.target += error / slope
+            holder.target = target
             self.set_load(t)
             result = solve()
             iterations, seconds = iterations + result.iterations, seconds + result.seconds
