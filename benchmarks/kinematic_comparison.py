@@ -7,8 +7,11 @@ converged step's `result.npz` is used). The kinematic (fishnet) drape puts the s
 die's exact surface (drape/kinematic.py: inextensible yarns, no forces), crossing the blank's
 centre at the die's point nearest (0, 0, -40) mm, the saddle's floor. Prints the stroke reached
 and `drape.kinematic.compare_peaks`: the FE peak on the flat blank, the kinematic shear's
-percentile there and over the FE's top 2 %, and the rank correlation of the two maps. The
-figures in docs/forming.md ("Double dome") were taken with it.
+percentile there and over the FE's top 2 %, and the rank correlation of the two maps; then,
+region by region of the flat blank (the saddle, the two ends on the x axis, the corners, the
+middles of the long sides, the domes; mm from the blank's centre, in ZONES), the largest and
+the 90th-percentile shear of the FE and of the kinematic drape. The figures in
+docs/forming.md ("Double dome") were taken with it.
 """
 
 from __future__ import annotations
@@ -22,6 +25,33 @@ import numpy as np
 
 #: a point above the die's floor at the saddle (mm); the drape starts at the die's point nearest it
 ORIGIN = (0.0, 0.0, -40.0)
+
+#: regions of the flat blank (mm, by |x| and |y|): name, then |x| and |y| ranges (the default
+#: tools: domes' centres at x = +-100, punch half-width 90, cavity half-length 192)
+ZONES = [("saddle", (0, 40), (0, 40)),
+         ("ends (x axis)", (150, 1e9), (0, 40)),
+         ("corners", (120, 1e9), (50, 1e9)),
+         ("mid-sides", (0, 60), (60, 1e9)),
+         ("domes", (60, 150), (0, 50))]
+
+
+def zone_table(points, fe, kinematic) -> str:
+    """Per region of ZONES: the largest and the 90th-percentile |shear| (deg) of the FE map and
+    of the kinematic drape, at the same flat-blank points (those the drape covers)."""
+    ok = np.isfinite(kinematic)
+    points, fe, kinematic = np.asarray(points)[ok], np.abs(fe[ok]), kinematic[ok]
+    x, y = np.abs(points[:, 0]), np.abs(points[:, 1])
+    lines = [f"{'region':14s} {'FE max':>7s} {'FE p90':>7s} {'kin max':>8s} {'kin p90':>8s}"
+             "  FE max at (mm)"]
+    for name, (x0, x1), (y0, y1) in ZONES:
+        inside = (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+        if not inside.any():
+            continue
+        i = np.flatnonzero(inside)[np.argmax(fe[inside])]
+        lines.append(f"{name:14s} {fe[i]:7.1f} {np.percentile(fe[inside], 90):7.1f} "
+                     f"{kinematic[inside].max():8.1f} {np.percentile(kinematic[inside], 90):8.1f}"
+                     f"  ({points[i, 0]:.1f}, {points[i, 1]:.1f})")
+    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
@@ -57,6 +87,7 @@ def main(argv=None) -> int:
     comparison = compare_peaks(data["point_xy"], data["gamma_t_deg"], drape)
     print(f"{args.config}: stroke {summary['stroke_mm']:.1f} mm")
     print(json.dumps(comparison, indent=1))
+    print(zone_table(data["point_xy"], data["gamma_t_deg"], drape.shear_at(data["point_xy"])))
     return 0
 
 
