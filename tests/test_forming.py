@@ -329,6 +329,17 @@ def drag(contact, path, depth=-0.01):
     return np.array(friction)
 
 
+def stand_in_flange(holder, force, u=None, evaluate=lambda: None):
+    """What Forming.hold_force uses of a Forming, for a holder whose measured force is
+    ``force(holder.target)``: the flange records each set_load as (t, target)."""
+    from types import SimpleNamespace
+    u = u or SimpleNamespace(x=SimpleNamespace(array=np.zeros(1)))
+    flange = SimpleNamespace(holder=holder, loads=[], tool_force=lambda name: force(holder.target),
+                             problem=SimpleNamespace(u=u, evaluate=evaluate))
+    flange.set_load = lambda t: flange.loads.append((t, holder.target))
+    return flange
+
+
 @pytest.mark.parametrize("offset, slope, moves, error", [
     (30.0, 1.0, 1, 0.0),            # the flat flange plus a constant: one move of F - measured
     (320.0, 0.1, 2, 0.0),           # pushed at the rim: 120 N off, 108 after the first move, then
@@ -346,23 +357,17 @@ def test_the_holder_is_moved_until_its_force_is_within_one_percent(offset, slope
     measured, the next ones by a secant step, or, once the force has been seen on both sides
     of F, inside that bracket, until the force is within 1 % of F; the iterations of all the
     solves add up, and a re-solve that fails fails the attempt with F' as it was."""
-    from types import SimpleNamespace
-
     from drape.forming import HOLDER_TOLERANCE, Forming, HolderControl
     from drape.solver import SolveResult
     F = 200.0
     holder = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1)
-    flange = SimpleNamespace(holder=holder, loads=[],
-                             tool_force=lambda name: offset + slope * holder.target,
-                             problem=SimpleNamespace(u=SimpleNamespace(x=SimpleNamespace(
-                                 array=np.zeros(1))), evaluate=lambda: None))
-    flange.set_load = flange.loads.append
+    flange = stand_in_flange(holder, lambda target: offset + slope * target)
     solved = SolveResult(True, 7, "CONVERGED_FNORM_RELATIVE", 1e-3, 1.0)
     again = SolveResult(True, 2, "CONVERGED_FNORM_ABS", 1e-3, 0.5)
     result = Forming.hold_force(flange, 0.3, lambda: again, solved)
     assert flange.tool_force("holder") - F == pytest.approx(error, abs=1e-9)
     assert abs(error) <= HOLDER_TOLERANCE * F
-    assert flange.loads == [0.3] * moves
+    assert [t for t, _ in flange.loads] == [0.3] * moves
     assert (result.converged, result.iterations, result.seconds) == (
         True, 7 + 2 * moves, 1.0 + 0.5 * moves)
 
@@ -399,9 +404,7 @@ def test_the_holder_keeps_the_solve_closest_to_its_force_when_the_moves_are_spen
     def evaluate():
         state["evaluated"] += 1
 
-    flange = SimpleNamespace(holder=holder, loads=[], tool_force=lambda name: state["force"],
-                             problem=SimpleNamespace(u=u, evaluate=evaluate))
-    flange.set_load = lambda t: flange.loads.append((t, holder.target))
+    flange = stand_in_flange(holder, lambda target: state["force"], u, evaluate)
     first = SolveResult(True, 7, "CONVERGED_FNORM_RELATIVE", 1e-3, 1.0)
     result = Forming.hold_force(flange, 0.3, solve, first)
     assert state["solves"] == 6
@@ -421,12 +424,10 @@ def test_the_holder_comes_down_from_the_wrinkles_onto_the_flange():
     10 mm, from a log of its re-solves): the holder rests on the flange's wrinkles at its rim,
     which answer a move by 3 % of it (486 N at F' = 0 N, 484.8 N at -40 N), until it comes
     down onto the flat flange at F' = 0, which answers about one to one (0.6-1.8 in the log;
-    1 here), for F = 500 N. The first
-    move (F - measured) stays on the wrinkles; the secant's, from their slope, lands on the
-    flange, 453 N above F; from there every target lies inside the bracket, and the sixth
-    re-solve lands on F (F' = 14). The secant alone (three moves) kept a solve 14.3 N off."""
-    from types import SimpleNamespace
-
+    1 here), for F = 500 N. The first move (F - measured) stays on the wrinkles; the
+    secant's, from their slope, lands on the flange, 453 N above F; from there every target
+    lies inside the bracket, and the sixth re-solve lands on F (F' = 14). The secant alone
+    (three moves) kept a solve 14.3 N off."""
     from drape.forming import HOLDER_TOLERANCE, Forming, HolderControl
     from drape.solver import SolveResult
     F = 500.0
@@ -436,13 +437,10 @@ def test_the_holder_comes_down_from_the_wrinkles_onto_the_flange():
 
     holder = HolderControl(F, area=1.0e4, penalty=10.0, smoothing=0.4)
     holder.target = -40.0
-    flange = SimpleNamespace(holder=holder, loads=[], tool_force=lambda name: force(holder.target),
-                             problem=SimpleNamespace(u=SimpleNamespace(x=SimpleNamespace(
-                                 array=np.zeros(1))), evaluate=lambda: None))
-    flange.set_load = lambda t: flange.loads.append(holder.target)
+    flange = stand_in_flange(holder, force)
     again = SolveResult(True, 5, "CONVERGED_FNORM_ABS", 1e-3, 0.5)
     result = Forming.hold_force(flange, 0.865, lambda: again, again)
-    targets = flange.loads
+    targets = [target for _, target in flange.loads]
     assert targets[0] == pytest.approx(-40.0 + F - force(-40.0))          # F - measured
     assert force(targets[0]) < F < force(targets[1])                      # bracketed
     below, above = targets[0], targets[1]
