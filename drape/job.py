@@ -86,6 +86,11 @@ class SolverConfig:
     rtol: float = setting(1e-10, "convergence: residual norm relative to the step's first", positive)
     atol: float = setting(1e-12, "convergence: absolute residual norm as a fraction of the force "
                           "scale mu*max(K1, K2)*sqrt(blank area)", positive)
+    neutral_loading_band: float = setting(
+        0.0, "Newton's Jacobian at law points plastic by less than this plastic shear in the "
+        "step (near neutral loading, where the law switches branch between iterations): the "
+        "geometric mean of the elastic and the consistent tangent; 0: the consistent tangent "
+        "everywhere. The residual is unchanged", non_negative, "rad")
     petsc: dict[str, bool | int | float | str] = setting(
         {}, "any PETSc options, without the prefix (e.g. snes_monitor = \"\", "
         "snes_linesearch_type = \"basic\"); they override the settings above")

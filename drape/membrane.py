@@ -31,7 +31,9 @@ quadrature points (a compiled :class:`dolfinx.fem.Expression`), runs the law fro
 *committed* state (so a line search may call it any number of times) and writes tau and the
 tangent into quadrature-space functions. The Jacobian is ``ufl.derivative`` of the residual with
 tau frozen (yarn tension and the whole geometric stiffness) plus the shear tangent
-``dtau/dC12 * dE12(du) * 2 dE12(v)``, the regularisation and the point stiffnesses.
+``dtau/dC12 * dE12(du) * 2 dE12(v)``, the regularisation and the point stiffnesses; with a
+``neutral_loading_band`` the shear tangent is stiffened where a point is only just plastic
+(:func:`neutral_loading_tangent`).
 
 The law's state (gamma_p, the centres c_1..c_n, gamma_max) lives in quadrature-space functions
 too; :meth:`MembraneProblem.commit` writes the last trial state there after a converged step,
@@ -91,7 +93,10 @@ class MembraneProblem:
 
     def __init__(self, blank_mesh, law, yarn_angle_deg: float, damping: float,
                  contributions: list[PointContribution] | None = None, jit_params: dict | None = None,
-                 bending_rigidity: float = 0.0, inertia: bool = False):
+                 bending_rigidity: float = 0.0, inertia: bool = False,
+                 neutral_loading_band: float = 0.0):
+        """``neutral_loading_band`` (rad): :func:`neutral_loading_tangent`'s band for Newton's
+        Jacobian; 0 keeps the law's consistent tangent everywhere."""
         import basix
         import ufl
         from dolfinx import fem
@@ -101,6 +106,7 @@ class MembraneProblem:
         self.comm = msh.comm
         self.law = law
         self.damping = float(damping)
+        self.neutral_loading_band = float(neutral_loading_band)
         self.contributions = list(contributions or [])
         self.timings = dict.fromkeys(("law", "quadrature_values", "contributions", "residual_assembly",
                                       "jacobian_assembly"), 0.0)
@@ -274,12 +280,17 @@ class MembraneProblem:
         start = time.perf_counter()
         C = self._yarn_C.eval(self.cells).reshape(-1, 3)
         middle = time.perf_counter()
-        response = self.law.update(self.committed_state(), C[:, 0], C[:, 1], C[:, 2])
+        committed = self.committed_state()
+        response = self.law.update(committed, C[:, 0], C[:, 1], C[:, 2])
         end = time.perf_counter()
         # owned cells only: assembly visits owned cells, so ghost entries of quadrature
         # functions are never read (and are not kept up to date)
         self.tau.x.array[self.qdofs] = response.tau
-        self.dtau.x.array[self.qdofs] = response.dtau_dC12
+        self.dtau.x.array[self.qdofs] = (
+            neutral_loading_tangent(response.dtau_dC12, response.active_surface >= 0,
+                                    response.trial.gamma_p - committed.gamma_p,
+                                    self.law.two_mu_ksh, self.neutral_loading_band)
+            if self.neutral_loading_band > 0.0 else response.dtau_dC12)
         self.response = response
         self._finite = _all_finite(response.tau, response.dtau_dC12, response.trial.gamma_p,
                                    response.trial.centres, response.trial.gamma_max_deg)
@@ -411,6 +422,24 @@ class MembraneProblem:
         """Deformed warp and weft directions F G1, F G2 at the law's points, (P, 3) each."""
         values = self._directions.eval(self.cells).reshape(-1, 6)
         return values[:, :3], values[:, 3:]
+
+
+def neutral_loading_tangent(consistent, plastic, plastic_increment, elastic, band):
+    """The shear tangent d tau / d C12 (N/mm) that Newton's Jacobian uses, per law point.
+
+    A point that the step loads only just past its elastic range (near neutral loading) lies on
+    the law's kink: from one Newton iterate to the next it switches between the elastic branch
+    (2 mu Ksh, 284 N/mm with the paper's values) and the plastic one (about 100 times softer),
+    and with the plastic tangent Newton's step overshoots it back onto the elastic branch (on
+    the hemisphere, hundreds of points per iteration; docs/benchmarks.md, "Where the slow
+    stretch comes from"). Where a point is plastic (``plastic``) by less than ``band`` (rad)
+    of plastic shear in the step (``plastic_increment``, from the committed state) this gives
+    the geometric mean of the elastic and the consistent tangent, sqrt(elastic * |consistent|);
+    elsewhere the consistent tangent. Only the Jacobian changes: the residual, and so what
+    a converged step satisfies, is the law's own."""
+    consistent = np.asarray(consistent, dtype=float)
+    near_neutral = np.asarray(plastic) & (np.abs(plastic_increment) < band)
+    return np.where(near_neutral, np.sqrt(elastic * np.abs(consistent)), consistent)
 
 
 def _all_finite(*arrays) -> bool:

@@ -190,7 +190,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
                               contributions=forming.contributions if forming else None,
                               jit_params=jit_params,
                               bending_rigidity=config.bending.value(forming is not None),
-                              inertia=inertial)
+                              inertia=inertial,
+                              neutral_loading_band=config.solver.neutral_loading_band)
     if forming is not None:
         forming.bind(problem)
     motion = PrescribedMotion(problem.V, blank_mesh, loading)

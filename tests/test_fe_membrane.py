@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from drape.job import BlankConfig, MeshConfig, load_job
-from drape.law.nested_surface import NestedSurfaceLaw
+from drape.law.nested_surface import LawState, NestedSurfaceLaw
 from drape.law.parameters import MaterialParameters
 from drape.membrane import PointContribution
 from fe_helpers import central_difference, jacobian_action, residual
@@ -287,3 +287,31 @@ def test_the_block_jacobian_is_the_aij_one(comm, cell):
     difference.axpy(-1.0, actions[None])
     assert actions[None].norm() > 0.0
     assert difference.norm() <= 1e-13 * actions[None].norm()
+
+
+def test_newtons_shear_tangent_is_stiffened_only_near_neutral_loading():
+    """solver.neutral_loading_band: a law point that this increment loads only just past its
+    elastic range gets sqrt(2 mu Ksh * consistent) in Newton's Jacobian; a point loaded well
+    past it, or unloading (elastic), keeps the law's consistent tangent; band 0 changes
+    nothing. The points come from the law itself: sheared to 3 deg (plastic), committed, then
+    loaded on by 1e-7 and by 1e-2 in C12, and unloaded by 1e-5 (within the innermost
+    surface: elastic)."""
+    from drape.membrane import neutral_loading_tangent
+    law = NestedSurfaceLaw(MaterialParameters())
+    one = np.ones(3)
+    state = LawState.virgin(3, law.n)
+    c12 = math.sin(math.radians(3.0))
+    state = law.update(state, one, one, np.full(3, c12)).trial
+    on = law.update(state, one, one, c12 + np.array([1e-7, 1e-2, -1e-5]))
+    increment = on.trial.gamma_p - state.gamma_p
+    plastic = on.active_surface >= 0
+    assert list(plastic) == [True, True, False]
+    assert 0.0 < increment[0] < 1e-6 and increment[1] > 1e-3 and increment[2] == 0.0
+    elastic = 2.0 * law.params.mu * law.params.Ksh     # 284 N/mm
+    assert on.dtau_dC12[0] < elastic / 20.0 and on.dtau_dC12[2] == pytest.approx(elastic)
+    blended = neutral_loading_tangent(on.dtau_dC12, plastic, increment, elastic, 1e-4)
+    assert blended[0] == pytest.approx(math.sqrt(elastic * on.dtau_dC12[0]), rel=1e-14)
+    assert on.dtau_dC12[0] < blended[0] < elastic
+    assert list(blended[1:]) == list(on.dtau_dC12[1:])
+    assert list(neutral_loading_tangent(on.dtau_dC12, plastic, increment, elastic, 0.0)) == list(
+        on.dtau_dC12)
