@@ -235,10 +235,9 @@ def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp):
 
 
 def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_tmp):
-    """The forming configs stiffen Newton's shear tangent (towards the elastic one) at law
+    """The hemisphere configs stiffen Newton's shear tangent (towards the elastic one) at law
     points loaded only just past their elastic range (solver.neutral_loading_band,
-    drape.membrane.neutral_loading_tangent).
-    Only the Jacobian changes, so on the same load steps (5 mm in fixed 0.5 mm steps), both
+    drape.membrane.neutral_loading_tangent). Only the Jacobian changes, so on the same load steps (5 mm in fixed 0.5 mm steps), both
     converged to 1e-10, the run with the band and the one with the consistent tangent
     everywhere must reach the same state: every step's forces within 1e-6 of the holder force
     and the shear field within 1e-6 of its peak. And the band must have acted: at the last
