@@ -215,7 +215,10 @@ def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp):
     fixed = ["steps.initial=0.1", "steps.maximum=0.1", "output.xdmf=false"]
     job, loose = run("hemisphere.toml", shared_tmp / "loose", fixed)
     assert job.config.solver.rtol == 1e-4
-    _, tight = run("hemisphere.toml", shared_tmp / "tight", fixed + ["solver.rtol=1e-10"])
+    # the reference with the consistent tangent: the shipped band converges only linearly
+    # near the solution, too slowly for 1e-10 in 30 iterations (docs/forming.md)
+    _, tight = run("hemisphere.toml", shared_tmp / "tight",
+                   fixed + ["solver.rtol=1e-10", "solver.neutral_loading_band=0"])
     assert [row["t"] for row in loose.rows] == [row["t"] for row in tight.rows]
     for row in tight.rows[2:]:    # vertical equilibrium after the damped first step
         assert abs(row["die_force"] - row["punch_force"] - row["holder_force"]) < (
