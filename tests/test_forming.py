@@ -18,15 +18,27 @@ from fe_helpers import central_difference, residual
 SHORT = ["process.stroke=5", "steps.initial=0.05", "steps.maximum=0.2"]
 
 
-def run(config, folder, overrides=()):
+def run(config, folder, overrides=(), on_step=None):
     from mpi4py import MPI
 
     from drape.job import load_job
     from drape.run import run_job
     job = load_job(CONFIGS / config, overrides=list(SHORT) + list(overrides))
-    summary = run_job(job, MPI.COMM_WORLD, output=str(folder))
+    summary = run_job(job, MPI.COMM_WORLD, output=str(folder), on_step=on_step)
     MPI.COMM_WORLD.barrier()
     return job, summary
+
+
+def assert_same_steps(a, b, folders, keys, bound, holder):
+    """Runs a and b (summaries; results in ``folders``) took the same load steps, every step's
+    forces ``keys`` agree within bound x holder (N) and the last shear fields within bound x
+    their peak."""
+    assert [row["t"] for row in a.rows] == [row["t"] for row in b.rows]
+    for row_a, row_b in zip(a.rows, b.rows):
+        for key in keys:
+            assert abs(row_a[key] - row_b[key]) < bound * holder, (row_a["step"], key)
+    gamma_a, gamma_b = (point_fields(folder)[1] for folder in folders)
+    assert np.abs(gamma_a - gamma_b).max() < bound * np.abs(gamma_b).max()
 
 
 @pytest.fixture(scope="module")
@@ -219,20 +231,14 @@ def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp):
     # near the solution, too slowly for 1e-10 in 30 iterations (docs/forming.md)
     _, tight = run("hemisphere.toml", shared_tmp / "tight",
                    fixed + ["solver.rtol=1e-10", "solver.neutral_loading_band=0"])
-    assert [row["t"] for row in loose.rows] == [row["t"] for row in tight.rows]
     for row in tight.rows[2:]:    # vertical equilibrium after the damped first step
         assert abs(row["die_force"] - row["punch_force"] - row["holder_force"]) < (
             1e-6 * row["die_force"]), row["step"]
-    holder = job.config.process.holder_force
-    for a, b in zip(loose.rows, tight.rows):
-        for key in ("punch_force", "holder_force"):
-            assert abs(a[key] - b[key]) < 1e-4 * holder, (a["step"], key)
+    assert_same_steps(loose, tight, (shared_tmp / "loose", shared_tmp / "tight"),
+                      ("punch_force", "holder_force"), 1e-4, job.config.process.holder_force)
     end = tight.rows[-1]["punch_force"]
     assert end > 1.0
     assert abs(loose.rows[-1]["punch_force"] - end) < 1e-4 * end
-    gamma_loose = point_fields(shared_tmp / "loose")[1]
-    gamma_tight = point_fields(shared_tmp / "tight")[1]
-    assert np.abs(gamma_loose - gamma_tight).max() < 1e-4 * np.abs(gamma_tight).max()
     iterations = [sum(row["newton_iterations"] for row in s.rows) for s in (loose, tight)]
     assert iterations[0] < iterations[1]
 
@@ -240,8 +246,8 @@ def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp):
 def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_tmp):
     """The hemisphere configs stiffen Newton's shear tangent (towards the elastic one) at law
     points loaded only just past their elastic range (solver.neutral_loading_band,
-    drape.membrane.neutral_loading_tangent). Only the Jacobian changes, so on the same load steps (5 mm in fixed 0.5 mm steps), both
-    converged to 1e-10, the run with the band and the one with the consistent tangent
+    drape.membrane.neutral_loading_tangent). Only the Jacobian changes, so on the same load
+    steps (5 mm in fixed 0.5 mm steps), both converged to 1e-10, the run with the band and the one with the consistent tangent
     everywhere must reach the same state: every step's forces within 1e-6 of the holder force
     and the shear field within 1e-6 of its peak. And the band must have acted: at the last
     step some points carry the stiffened tangent, sqrt(2 mu Ksh * consistent)."""
@@ -262,23 +268,13 @@ def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_
                 used[changed] / np.sqrt(p.law.two_mu_ksh * consistent[changed]) - 1.0), initial=0.0))
 
     from mpi4py import MPI
-
-    from drape.job import load_job
-    from drape.run import run_job
-    job = load_job(CONFIGS / "hemisphere.toml", overrides=SHORT + fixed)
+    job, band = run("hemisphere.toml", shared_tmp / "band", fixed, on_step=look)
     assert job.config.solver.neutral_loading_band == 1e-4
-    band = run_job(job, MPI.COMM_WORLD, output=str(shared_tmp / "band"), on_step=look)
-    MPI.COMM_WORLD.barrier()
     _, plain = run("hemisphere.toml", shared_tmp / "plain",
                    fixed + ["solver.neutral_loading_band=0"])
-    assert [row["t"] for row in band.rows] == [row["t"] for row in plain.rows]
-    holder = job.config.process.holder_force
-    for a, b in zip(band.rows, plain.rows):
-        for key in ("punch_force", "holder_force", "die_force"):
-            assert abs(a[key] - b[key]) < 1e-6 * holder, (a["step"], key)
-    gamma_band = point_fields(shared_tmp / "band")[1]
-    gamma_plain = point_fields(shared_tmp / "plain")[1]
-    assert np.abs(gamma_band - gamma_plain).max() < 1e-6 * np.abs(gamma_plain).max()
+    assert_same_steps(band, plain, (shared_tmp / "band", shared_tmp / "plain"),
+                      ("punch_force", "holder_force", "die_force"), 1e-6,
+                      job.config.process.holder_force)
     assert MPI.COMM_WORLD.allreduce(stiffened["points"]) > 0
     assert stiffened["plastic"] and stiffened["error"] < 1e-12
     print(f"\nstiffened points at 5 mm: {stiffened['points']}; iterations "
