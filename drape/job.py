@@ -212,8 +212,9 @@ class ProcessConfig:
     locking_angle: float = setting(40.0, "shear angle above which the fabric is reported as "
                                    "locked (summary.json, maps)", in_range(0.0, 90.0, lo_open=True,
                                                                            hi_open=True), "deg")
-    contact_cutoff: float = setting(10.0, "meshed tools: exact closest points within this "
-                                    "distance of the tool (farther points are out of contact)",
+    contact_cutoff: float = setting(10.0, "hemisphere and meshed tools: exact closest "
+                                    "points within this distance of the tool (farther points "
+                                    "are out of contact)",
                                     positive, "mm")
     areal_density: float = setting(
         0.0, "the blank's mass per area, for its inertia (implicit dynamics, docs/forming.md, "

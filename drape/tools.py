@@ -86,6 +86,11 @@ class Segment:
     def curvature(self) -> float:
         return 0.0
 
+    def bounds(self) -> np.ndarray:
+        """[[r_min, z_min], [r_max, z_max]] of the piece."""
+        ends = np.array([self.start, self.end], dtype=float)
+        return np.array([ends.min(axis=0), ends.max(axis=0)])
+
     def closest(self, q: np.ndarray):
         a, b = self.point(0), self.point(1)
         ab = b - a
@@ -127,6 +132,11 @@ class Arc:
 
     def curvature(self) -> float:
         return 1.0 / self.radius
+
+    def bounds(self) -> np.ndarray:
+        """[[r_min, z_min], [r_max, z_max]]: the whole circle's box (it holds the arc)."""
+        centre = np.asarray(self.centre, dtype=float)
+        return np.array([centre - self.radius, centre + self.radius])
 
     def closest(self, q: np.ndarray):
         centre = np.asarray(self.centre, dtype=float)
@@ -200,6 +210,12 @@ class Profile:
                     self._end_sharp[i, which] = abs(_cross2(n_own, n_other)) > 1e-9 or norm < 1.0
                 else:  # on the axis: the mirror image continues smoothly
                     self._end_normal[i, which] = n_own
+        # a box in (r, z) that holds the profile, and so the tool's solid (a ring's solid lies
+        # inside its closed profile; a solid on the axis between the profile and the axis,
+        # whose ends are on it): a point outside the box is in front of the tool, at least
+        # its distance to the box away
+        boxes = np.array([piece.bounds() for piece in self.pieces])
+        self.box = np.array([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
 
     def sharp_corners(self) -> np.ndarray:
         """The (r, z) points where the profile turns sharply (edges of the tool's solid)."""
@@ -255,10 +271,27 @@ class AxisymmetricSurface:
         return np.stack([r, p[:, 2]], axis=1), e_r
 
     def query(self, points, offset=None, cutoff: float | None = None) -> ContactQuery:
-        """Exact for every point (``cutoff`` is accepted for the common interface and unused)."""
+        """Exact for every point within ``cutoff`` (mm) of the tool's box in (r, z), and for
+        all without a cutoff. A point farther from the box gets, in its meridian plane, the
+        profile's first point as its closest point, that point's normal, and the distance to
+        it as its gap: an upper bound of the true distance, which exceeds the cutoff."""
         p, shift = _tool_frame(points, offset)
         q, e_r = self._meridian(p)
-        c, gap, n, _, _ = self.profile.closest(q)
+        c = np.empty_like(q)
+        gap = np.empty(q.shape[0])
+        n = np.empty_like(q)
+        if cutoff is None:
+            near = slice(None)
+        else:
+            outside = np.maximum(np.maximum(self.profile.box[0] - q, q - self.profile.box[1]), 0.0)
+            far = np.einsum("ni,ni->n", outside, outside) > cutoff * cutoff
+            near = ~far
+            first = self.profile.pieces[0]
+            c[far] = first.point(0)
+            gap[far] = np.linalg.norm(q[far] - c[far], axis=1)
+            tangent = first.tangent(0)
+            n[far] = (tangent[1], -tangent[0])
+        c[near], gap[near], n[near], _, _ = self.profile.closest(q[near])
         e_z = np.array([0.0, 0.0, 1.0])
         normal = n[:, :1] * e_r + n[:, 1:] * e_z
         closest = c[:, :1] * e_r + c[:, 1:] * e_z + shift

@@ -76,6 +76,40 @@ def die_profile(Ro=55.0, rf=5.0, Rout=150.0, T=50.0, top=0.0):
                     Segment((Ro, top - rf), (Ro, top - T))])
 
 
+def test_analytic_cutoff_is_exact_within_it_and_a_bound_beyond():
+    """With a cutoff, an analytic tool answers exactly for every point within it of the tool
+    (the same numbers as without), and a farther point gets a point of the tool's surface and
+    the distance to it: at least the true distance and more than the cutoff, positive."""
+    R, top = 50.0, 110.0
+    punch = AxisymmetricSurface(Profile([Arc((0.0, R), R, -0.5 * math.pi, 0.0),
+                                         Segment((R, R), (R, top)),
+                                         Segment((R, top), (0.0, top))]), "punch")
+    ring = AxisymmetricSurface(Profile([Segment((150.0, 0.0), (60.0, 0.0)),
+                                        Arc((60.0, -5.0), 5.0, 0.5 * math.pi, math.pi),
+                                        Segment((55.0, -5.0), (55.0, -20.0)),
+                                        Segment((55.0, -20.0), (150.0, -20.0)),
+                                        Segment((150.0, -20.0), (150.0, 0.0))]), "die")
+    points = np.column_stack([RNG.uniform(-170, 170, 40000), RNG.uniform(-170, 170, 40000),
+                              RNG.uniform(-60, 130, 40000)])
+    offset = np.array([0.0, 0.0, -30.0])
+    for tool, shift in ((punch, offset), (ring, None)):
+        exact = tool.query(points, shift)
+        cut = tool.query(points, shift, cutoff=3.0)
+        near = exact.gap <= 3.0
+        assert 500 < near.sum() < 39000                    # both kinds were sampled
+        for got, want in zip(cut, exact):
+            np.testing.assert_array_equal(got[near], want[near])
+        beyond = ~np.all(cut.closest == exact.closest, axis=1)
+        assert beyond.sum() > 1000 and not np.any(beyond & near)
+        assert np.all(cut.gap[beyond] >= exact.gap[beyond]) and np.all(cut.gap[beyond] > 3.0)
+        np.testing.assert_allclose(cut.gap[beyond],
+                                   np.linalg.norm(points[beyond] - cut.closest[beyond], axis=1),
+                                   rtol=1e-12)
+        on_surface = tool.query(cut.closest[beyond], shift).gap
+        np.testing.assert_allclose(on_surface, 0.0, atol=1e-9)
+        np.testing.assert_allclose(np.linalg.norm(cut.normal, axis=1), 1.0, rtol=1e-12)
+
+
 def test_analytic_die_fillet_is_a_torus():
     """In the fillet's sector the distance is that to the torus' generating circle, minus rf;
     above the top face the height; inside the opening the radial distance to the wall."""
