@@ -2,7 +2,7 @@
 (the converged ones and those cut back) with its iterations, seconds and residual history.
 
     .venv/bin/python benchmarks/newton_stages.py configs/hemisphere.toml OUT \
-        --stages 0,20,40,47.5,50 --set output.xdmf=false [--histories OUT.json]
+        --stages 0,20,40,47.5,50 --set output.xdmf=false [--histories OUT.json] [--until MM]
 
 Runs the job (``--set table.key=value`` as ``drape run`` takes it) into the folder OUT, on the
 ranks it is started on (rank 0 prints), and records each call of Newton's solve: the stroke it
@@ -10,7 +10,9 @@ starts from (mm), converged or not, iterations, seconds, and the residual norms 
 recorded. It prints, per stage of the stroke (the attempts that start in [a, b) mm): attempts,
 Newton iterations (the failed attempts' included), failed attempts and seconds; then each
 failed attempt. ``--histories`` writes every attempt's record as JSON, for a closer look (for
-instance, how fast the residual falls in the attempts that fail).
+instance, how fast the residual falls in the attempts that fail). ``--until MM`` stops the job
+after its first converged step at or beyond MM (the stroke's first stretch alone; the results
+folder keeps what was written, as after an interruption).
 
 The by-stage figures in docs/benchmarks.md ("Where the full stroke's time goes now, by stage")
 were taken with it.
@@ -44,6 +46,8 @@ def main(argv=None) -> int:
                         help="stage bounds along the stroke, mm (comma-separated)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--histories", help="write every attempt's record to this JSON file")
+    parser.add_argument("--until", type=float, metavar="MM",
+                        help="stop after the first converged step at or beyond this stroke (mm)")
     args = parser.parse_args(argv)
     stages = [float(s) for s in args.stages.split(",")]
 
@@ -71,10 +75,20 @@ def main(argv=None) -> int:
             history=[float(v) for v in self.snes.getConvergenceHistory()[0]]))
         return result
 
+    class Reached(Exception):
+        """The stroke given by --until is reached."""
+
+    def stop_at_until(row, problem):
+        if tools["forming"].stroke * float(problem.t_committed) >= args.until:
+            raise Reached
+
     forming.Forming.bind, solver.NewtonSolver.solve = keep, recording
     start = time.perf_counter()
     try:
-        run_job(load_job(args.config, overrides=args.set), output=args.folder, overwrite=True)
+        run_job(load_job(args.config, overrides=args.set), output=args.folder, overwrite=True,
+                on_step=None if args.until is None else stop_at_until)
+    except Reached:
+        pass
     finally:
         wall = time.perf_counter() - start
         if MPI.COMM_WORLD.rank == 0:
