@@ -79,7 +79,7 @@ def main(argv=None) -> int:
         """The stroke given by --until is reached."""
 
     def stop_at_until(row, problem):
-        if tools["forming"].stroke * float(problem.t_committed) >= args.until:
+        if row["stroke"] >= args.until:
             raise Reached
 
     forming.Forming.bind, solver.NewtonSolver.solve = keep, recording
