@@ -13,7 +13,8 @@ overwritten without --overwrite. See docs/fe-solver.md.
 
 Progress (rank 0 only, on stdout): on a terminal one redrawn line, a bar over the load factor t
 from 0 to 1 with the step, Newton iterations, step size, elapsed time and an estimate of the
-time left; otherwise (a log file, a batch job, and always under mpirun) one plain line per
+time left (the load still to go at the slower of the average pace and the last 3 steps';
+drape.progress); otherwise (a log file, a batch job, and always under mpirun) one plain line per
 converged step; nothing with --quiet. Cutbacks and warnings get lines of their own. View the
 results with `drape view`.
 """

@@ -2,6 +2,8 @@
 
 import io
 
+import pytest
+
 from drape.progress import Progress, _duration
 
 
@@ -22,14 +24,66 @@ def test_plain_lines_with_time_left_when_not_a_terminal():
     clock, stream = FakeClock(), io.StringIO()
     progress = Progress(total=1.0, stream=stream, clock=clock)
     clock.now += 30.0
-    progress.step(3, 0.25, 4, 0.05)
+    progress.step(1, 0.25, 4, 0.25)
     clock.now += 30.0
-    progress.step(4, 0.5, 2, 0.1, note="cutback once")
+    progress.step(2, 0.5, 2, 0.25, note="cutback once")
     lines = stream.getvalue().splitlines()
     assert lines == [
-        "step 3: load 0.25/1 (+0.05), 4 Newton iterations, 30s elapsed, ~1m30s left",
-        "step 4: load 0.5/1 (+0.1), 2 Newton iterations, 1m00s elapsed, ~1m00s left, cutback once",
+        "step 1: load 0.25/1 (+0.25), 4 Newton iterations, 30s elapsed, ~1m30s left",
+        "step 2: load 0.5/1 (+0.25), 2 Newton iterations, 1m00s elapsed, ~1m00s left, cutback once",
     ]
+
+
+def steps_at(clock, progress, seconds_and_loads):
+    """Converge steps after the given seconds at the given loads; the estimates shown."""
+    left = []
+    previous = progress.history[-1][1] if progress.history else 0.0
+    for seconds, load in seconds_and_loads:
+        clock.now += seconds
+        progress.step(len(left) + 1, load, 5, load - previous)
+        previous = load
+        left.append(progress.time_left())
+    return left
+
+
+def test_time_left_follows_the_recent_steps_when_the_run_slows_down():
+    # four steps of 0.2 in 10 s each, then two of 0.05 in 30 s each (the shear locking)
+    clock, stream = FakeClock(), io.StringIO()
+    progress = Progress(total=1.0, stream=stream, clock=clock, recent_steps=3)
+    left = steps_at(clock, progress, [(10, 0.2), (10, 0.4), (10, 0.6), (10, 0.8), (30, 0.85),
+                                      (30, 0.9)])
+    # at 0.85: the average pace is 70 s / 0.85, the last three steps' 50 s / 0.45 (from 0.4)
+    assert left[4] == pytest.approx(max(70 / 0.85, 50 / 0.45) * 0.15) == pytest.approx(50 / 3)
+    # at 0.9: 100 s / 0.9 against 70 s / 0.3 (from 0.6): 23.3 s, where the average says 11.1 s
+    assert left[5] == pytest.approx(70 / 0.3 * 0.1)
+    assert "~17s left" in stream.getvalue().splitlines()[4]
+    assert "~23s left" in stream.getvalue().splitlines()[5]
+    # while the pace is steady both paces agree: 10 s per 0.2
+    assert left[:4] == pytest.approx([40.0, 30.0, 20.0, 10.0])
+
+
+def test_time_left_keeps_the_average_when_the_run_speeds_up():
+    # a slow first step (the blank settling), then quick ones: the average governs
+    clock, stream = FakeClock(), io.StringIO()
+    progress = Progress(total=1.0, stream=stream, clock=clock, recent_steps=3)
+    left = steps_at(clock, progress, [(50, 0.1), (5, 0.2), (5, 0.3), (4, 0.4)])
+    assert left[3] == pytest.approx(64 / 0.4 * 0.6)           # the recent pace: 14 s / 0.3
+    assert "~1m36s left" in stream.getvalue().splitlines()[3]
+
+
+def test_time_left_of_a_resumed_run_counts_from_where_it_resumed():
+    # resumed at 0.5: the first step of 0.01 took 2 s, so 0.49 still to go takes 98 s
+    # (counting from 0, as if the first half had been done in those 2 s, it said "~2s left")
+    clock, stream = FakeClock(), io.StringIO()
+    progress = Progress(total=1.0, stream=stream, clock=clock)
+    clock.now += 2.0
+    progress.step(51, 0.51, 3, 0.01)
+    assert progress.history[0] == (100.0, pytest.approx(0.5))
+    assert progress.time_left() == pytest.approx(98.0)
+    assert stream.getvalue().endswith("~1m38s left\n")
+    clock.now += 2.0
+    progress.step(52, 1.0, 3, 0.49)                            # done: nothing left
+    assert progress.time_left() == 0.0 and stream.getvalue().endswith("~0s left\n")
 
 
 def test_terminal_bar_is_redrawn_and_messages_get_their_own_line():
