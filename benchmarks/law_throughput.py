@@ -1,6 +1,7 @@
-"""Throughput of the vectorised law against a per-point Python loop of the same law.
+"""Throughput of the law's compiled kernel, against the same code interpreted and against the
+vectorised numpy law of version 1 (the last commit before the kernel).
 
-    .venv/bin/python benchmarks/law_throughput.py [--sizes 1e3,1e4,1e5,1e6] [--loop-sample 2000]
+    .venv/bin/python benchmarks/law_throughput.py [--sizes 1e3,1e4,1e5,1e6] [--baseline REV]
 
 For each number of points N and three kinds of increment, from committed states prepared by a
 random cyclic history (not timed):
@@ -9,41 +10,50 @@ random cyclic history (not timed):
                residual evaluation sees where nothing yields);
 * forming   -- a 0.2 deg increment continuing each point's last direction: plastic, mostly on
                the surface already active (a typical load step of a forming run);
-* cyclic    -- a random +-2 deg increment: reversals, hand-overs between surfaces, detachments.
+* cyclic    -- a random +-2 deg increment: reversals, hand-overs between surfaces.
 
-The vectorised law is timed on all N points: the best of the repeated calls from the same
-committed state (what a Newton loop does; the law remembers q, alpha and sin at the committed
-angles between calls) and, in brackets, the first call; the loop
-(drape.law.pointwise, one point at a time) on a sample of --loop-sample points, whose per-point
-time is exact for any N since the loop is linear in N. Prints points per second side by side.
+Columns (points per second, one core): *compiled*, the best of --repeats calls from the same
+committed state (as in a Newton loop); *interpreted*, the same kernel with NUMBA_DISABLE_JIT=1
+in a subprocess, on a sample of --sample points (its time is linear in N); *v1 numpy*, the
+vectorised law of ``git show REV:drape/law/nested_surface.py`` (version 1 of the reading, so
+its plastic work differs: a baseline of speed, not of results), best of --repeats calls. The
+first compiled call of the process (numba's cache loaded, or the compilation) is printed too.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
-from drape.law.nested_surface import LawState, NestedSurfaceLaw
-from drape.law.parameters import MaterialParameters
-from drape.law.pointwise import PointwiseLaw
+REPO = Path(__file__).resolve().parent.parent
+#: the last commit with the vectorised law of version 1
+BASELINE = "7cc2b0a"
 
 
-def prepared_states(law, n_points, rng, steps=12):
-    """Committed states after a random cyclic history, with each point's last angle and direction."""
-    state = LawState.virgin(n_points, law.n)
-    angle = np.zeros(n_points)
-    step = np.zeros(n_points)
+def prepared(law_module, params, n_points, seed, steps=12):
+    """Committed states after a random cyclic history, each point's last angle and direction."""
+    law = law_module.NestedSurfaceLaw(params)
+    rng = np.random.default_rng(seed)
+    state = law_module.LawState.virgin(n_points, law.n)
+    angle, step = np.zeros(n_points), np.zeros(n_points)
     for _ in range(steps):
         step = rng.normal(0.0, 4.0, n_points)
         angle = np.clip(angle + step, -45.0, 45.0)
         ones = np.ones(n_points)
         state = law.update(state, ones, ones, np.sin(np.radians(angle))).trial
-    return state, angle, np.sign(step)
+    return law, state, angle, np.sign(step), rng
 
 
-def increments(kind, angle, direction, rng):
+def increment(kind, angle, direction, rng):
     if kind == "elastic":
         return np.sin(np.radians(angle)) - 2e-6 * direction
     if kind == "forming":
@@ -51,52 +61,76 @@ def increments(kind, angle, direction, rng):
     return np.sin(np.radians(angle + rng.uniform(-2.0, 2.0, angle.size)))
 
 
-def time_vectorised(law, state, C12, repeats):
-    """Best of ``repeats`` calls, the first from a cold start and the others (warm) after the law
-    has seen the committed state, as in a Newton loop. Returns (cold, warm, response)."""
-    ones = np.ones(C12.size)
-    law._committed_cache = None
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        response = law.update(state, ones, ones, C12)
-        times.append(time.perf_counter() - start)
-    return times[0], min(times[1:] or times), response
+def rates(law_module, params, size, repeats, seed=2026):
+    """{kind: (points/s, plastic share)} for one law module, best of ``repeats`` calls."""
+    law, state, angle, direction, rng = prepared(law_module, params, size, seed)
+    out = {}
+    for kind in ("elastic", "forming", "cyclic"):
+        C12 = increment(kind, angle, direction, rng)
+        ones = np.ones(size)
+        best = np.inf
+        for _ in range(repeats):
+            start = time.perf_counter()
+            response = law.update(state, ones, ones, C12)
+            best = min(best, time.perf_counter() - start)
+        out[kind] = (size / best, float(np.mean(response.active_surface >= 0)))
+    return out
 
 
-def time_loop(reference, state, C12, sample):
-    start = time.perf_counter()
-    for i in range(sample):
-        reference.update(state.gamma_p[i], list(state.centres[:, i]), state.gamma_max_deg[i],
-                         1.0, 1.0, C12[i])
-    return (time.perf_counter() - start) / sample
+def baseline_module(revision):
+    """The vectorised law of ``revision``, imported from git under another name."""
+    source = subprocess.run(["git", "show", f"{revision}:drape/law/nested_surface.py"],
+                            cwd=REPO, check=True, capture_output=True, text=True).stdout
+    path = Path(tempfile.mkdtemp()) / "law_v1.py"
+    path.write_text(source)
+    spec = importlib.util.spec_from_file_location("law_v1", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["law_v1"] = module          # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def interpreted_rates(surfaces, sample):
+    """The kernel with numba's JIT disabled, in a subprocess (the switch is read at import)."""
+    code = ("import json, sys; sys.path.insert(0, %r); import law_throughput as b; "
+            "from drape.law import nested_surface as m; "
+            "from drape.law.parameters import MaterialParameters as P; "
+            "print(json.dumps(b.rates(m, P().with_surfaces(%d), %d, 1)))"
+            % (str(Path(__file__).parent), surfaces, sample))
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1")
+    output = subprocess.run([sys.executable, "-c", code], env=env, check=True,
+                            capture_output=True, text=True).stdout
+    return {k: tuple(v) for k, v in json.loads(output.splitlines()[-1]).items()}
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", default="1e3,1e4,1e5,1e6")
-    parser.add_argument("--loop-sample", type=int, default=2000)
+    parser.add_argument("--sample", type=int, default=2000, help="points for the interpreted run")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--surfaces", type=int, default=2, help="inner surfaces (paper: 2)")
+    parser.add_argument("--baseline", default=BASELINE, help="git revision of the v1 numpy law")
     args = parser.parse_args(argv)
+
+    from drape.law import nested_surface
+    from drape.law.parameters import MaterialParameters
     params = MaterialParameters().with_surfaces(args.surfaces)
-    law, reference = NestedSurfaceLaw(params), PointwiseLaw(params)
-    rng = np.random.default_rng(2026)
-    print(f"law: {params.name}; numpy {np.__version__}")
-    print(f"{'points':>9} {'increment':>9} {'plastic':>8} {'vectorised':>12} {'(1st call)':>12}"
-          f" {'loop':>12} {'speed-up':>9}")
-    print(f"{'':>9} {'':>9} {'share':>8} {'Mpoints/s':>12} {'Mpoints/s':>12} {'Mpoints/s':>12} {'':>9}")
+    start = time.perf_counter()
+    law = nested_surface.NestedSurfaceLaw(params)
+    law.update(nested_surface.LawState.virgin(1, law.n), np.ones(1), np.ones(1), np.ones(1) * 0.3)
+    print(f"law: {params.name}; first compiled call {time.perf_counter() - start:.2f} s")
+    interpreted = interpreted_rates(args.surfaces, args.sample)
+    v1 = baseline_module(args.baseline)
+    print(f"{'points':>9} {'increment':>9} {'plastic':>8} {'compiled':>10} {'interpreted':>12}"
+          f" {'v1 numpy':>10} {'compiled/v1':>12}")
+    print(f"{'':>9} {'':>9} {'share':>8} {'Mpoints/s':>10} {'Mpoints/s':>12} {'Mpoints/s':>10}")
     for size in (int(float(s)) for s in args.sizes.split(",")):
-        state, angle, direction = prepared_states(law, size, rng)
-        for kind in ("elastic", "forming", "cyclic"):
-            C12 = increments(kind, angle, direction, rng)
-            cold, seconds, response = time_vectorised(law, state, C12, args.repeats)
-            sample = min(size, args.loop_sample)
-            per_point = time_loop(reference, state, C12, sample)
-            plastic = np.mean(response.active_surface >= 0)
-            rate, loop_rate = size / seconds / 1e6, 1.0 / per_point / 1e6
-            print(f"{size:>9} {kind:>9} {plastic:>8.2f} {rate:>12.3f} {size / cold / 1e6:>12.3f}"
-                  f" {loop_rate:>12.4f} {rate / loop_rate:>8.0f}x", flush=True)
+        compiled = rates(nested_surface, params, size, args.repeats)
+        old = rates(v1, params, size, args.repeats)
+        for kind, (rate, plastic) in compiled.items():
+            print(f"{size:>9} {kind:>9} {plastic:>8.2f} {rate / 1e6:>10.2f} "
+                  f"{interpreted[kind][0] / 1e6:>12.4f} {old[kind][0] / 1e6:>10.3f} "
+                  f"{rate / old[kind][0]:>11.1f}x", flush=True)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Checkpoints of a run and resuming from one (``drape run CONFIG --resume``).
 
 ``checkpoint.npz`` in the results folder holds the last checkpointed converged step: every
-quadrature state (the law's gamma_p, centres and gamma_max, any point contribution's
+quadrature state (the law's state functions, any point contribution's
 :meth:`~drape.membrane.PointContribution.state`), the committed displacement, the ledgers of
 external and regularisation work (with the prescribed forces and displacements their next
 increment starts from), the step number, load factor t, the step size the loop proposes next,
@@ -144,12 +144,9 @@ class Checkpoints:
                  "u_previous": p.u_previous.x.array.copy(),
                  "t_steps": np.array([p.t_committed, np.nan if p.t_previous is None
                                       else p.t_previous]),
-                 "gamma_p": p.gamma_p.x.array.copy(),
-                 "gamma_max": p.gamma_max.x.array.copy(),
-                 # (n, points): n = 0 when the job keeps only the outer surface (surfaces = 0)
-                 "centres": np.array([c.x.array for c in p.centres]).reshape(
-                     len(p.centres), p.gamma_p.x.array.size),
                  "ledger_f": _array(self.ledger["f"]), "ledger_g": _array(self.ledger["g"])}
+        for name, function in p.law_state_functions().items():
+            state[f"law.{name}"] = function.x.array.copy()
         for i, contribution in enumerate(p.contributions):
             for key, value in contribution.state().items():
                 state[f"contribution{i}.{key}"] = np.asarray(value)
@@ -184,10 +181,13 @@ class Checkpoints:
         p.u_previous.x.array[:] = local["u_previous"]
         p.t_committed = float(local["t_steps"][0])
         p.t_previous = None if np.isnan(local["t_steps"][1]) else float(local["t_steps"][1])
-        p.gamma_p.x.array[:] = local["gamma_p"]
-        p.gamma_max.x.array[:] = local["gamma_max"]
-        for k, centre in enumerate(p.centres):
-            centre.x.array[:] = local["centres"][k]
+        for name, function in p.law_state_functions().items():
+            if f"law.{name}" not in local:
+                raise InputError(f"the checkpoint has no law state '{name}' (made by an older "
+                                 "drape, before version 2 of the law)", source=str(self.path),
+                                 expected="a checkpoint of this version; or --overwrite to "
+                                 "start over")
+            function.x.array[:] = local[f"law.{name}"]
         for i, contribution in enumerate(p.contributions):
             prefix = f"contribution{i}."
             contribution.load_state({k[len(prefix):]: v for k, v in local.items()

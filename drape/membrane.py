@@ -35,7 +35,8 @@ tau frozen (yarn tension and the whole geometric stiffness) plus the shear tange
 ``neutral_loading_band`` the shear tangent is stiffened where a point is only just plastic
 (:func:`neutral_loading_tangent`).
 
-The law's state (gamma_p, the centres c_1..c_n, gamma_max) lives in quadrature-space functions
+The law's state (gamma_p, the centres c_1..c_n, gamma_max, the branch's active surface,
+direction and Table-2 row, the committed yarn-frame C) lives in quadrature-space functions
 too; :meth:`MembraneProblem.commit` writes the last trial state there after a converged step,
 :meth:`MembraneProblem.restore` goes back to the committed displacement after a failed one.
 
@@ -143,9 +144,12 @@ class MembraneProblem:
         self.qdofs = self.Q.dofmap.list.array.reshape(-1, nq)[: self.n_cells].ravel()
         self.tau = fem.Function(self.Q, name="tau")
         self.dtau = fem.Function(self.Q, name="dtau_dC12")
-        self.gamma_p = fem.Function(self.Q, name="gamma_p")
-        self.gamma_max = fem.Function(self.Q, name="gamma_max_deg")
-        self.centres = [fem.Function(self.Q, name=f"centre_{k + 1}") for k in range(law.n)]
+        # the law's committed state, one quadrature function per quantity (LawState.columns)
+        from drape.law.nested_surface import LawState
+        virgin = LawState.virgin(1, law.n).columns()
+        self.law_state = {name: fem.Function(self.Q, name=f"law_{name}") for name in virgin}
+        for name, function in self.law_state.items():
+            function.x.array[:] = virgin[name][0]
         params = law.params
         self.tau.x.array[:] = 0.0
         self.dtau.x.array[:] = law.two_mu_ksh   # elastic until the first evaluation
@@ -268,11 +272,16 @@ class MembraneProblem:
         return self.bending_rigidity / (2.0 * h) * ufl.inner(ufl.jump(normal), ufl.jump(normal)) * dS
 
     # --- the law at the quadrature points ------------------------------------------------------
+    def law_state_functions(self) -> dict:
+        """The quadrature functions that hold the law's committed state, by name (what a
+        checkpoint saves and restores)."""
+        return self.law_state
+
     def committed_state(self):
         from drape.law.nested_surface import LawState
         q = self.qdofs
-        centres = np.array([c.x.array[q] for c in self.centres]).reshape(self.law.n, q.size)
-        return LawState(self.gamma_p.x.array[q].copy(), centres, self.gamma_max.x.array[q].copy())
+        return LawState.from_columns({name: f.x.array[q] for name, f in self.law_state.items()},
+                                     self.law.n)
 
     def evaluate(self) -> None:
         """Run the law at every local quadrature point for the current u, from the committed
@@ -293,7 +302,7 @@ class MembraneProblem:
             if self.neutral_loading_band > 0.0 else response.dtau_dC12)
         self.response = response
         self._finite = _all_finite(response.tau, response.dtau_dC12, response.trial.gamma_p,
-                                   response.trial.centres, response.trial.gamma_max_deg)
+                                   response.trial.centres)
         if not self._finite:
             self.nonfinite.add("law")
         self.timings["quadrature_values"] += middle - start + time.perf_counter() - end
@@ -371,11 +380,9 @@ class MembraneProblem:
         """Make the converged step (at load factor t) the committed state (law, displacement,
         contributions); the committed displacement becomes the previous one."""
         self._ensure_evaluated()
-        trial, q = self.response.trial, self.qdofs
-        self.gamma_p.x.array[q] = trial.gamma_p
-        self.gamma_max.x.array[q] = trial.gamma_max_deg
-        for k, centre in enumerate(self.centres):
-            centre.x.array[q] = trial.centres[k]
+        q = self.qdofs
+        for name, values in self.response.trial.columns().items():
+            self.law_state[name].x.array[q] = values
         if t is not None:
             self.u_previous.x.array[:] = self.u_committed.x.array
             self.t_previous, self.t_committed = self.t_committed, float(t)

@@ -3,9 +3,9 @@
 The frame imposes F = cos(gt/2)(G1G1 + G2G2) + sin(gt/2)(G1G2 + G2G1), so C11 = C22 = 1 and
 C12 = sin(gt): each row of the history is one increment of the law (no sub-stepping), so a
 history file reproduces a result exactly. Writes a CSV (gamma_t_deg, tau, gamma_p_deg,
-active_surface, ...) and a PNG of tau against the shear angle; by default the one-surface
-model (the paper's figure 6) is drawn on the same history beside the nested-surface one
-(figure 8).
+active_surface, the state's branch_surface, branch_direction and table_row, ...) and a PNG of
+tau against the shear angle; by default the one-surface model (the paper's figure 6) is drawn
+on the same history beside the nested-surface one (figure 8).
 """
 
 from __future__ import annotations
@@ -112,7 +112,8 @@ def drive(params: MaterialParameters, history_deg) -> dict[str, np.ndarray]:
     history = np.asarray(history_deg, dtype=float)
     columns = {name: np.empty(history.size) for name in
                ("gamma_t_deg", "tau", "gamma_p_deg", "dtau_dC12", "gamma_max_deg")}
-    columns["active_surface"] = np.empty(history.size, dtype=int)
+    for name in ("active_surface", "branch_surface", "branch_direction", "table_row"):
+        columns[name] = np.empty(history.size, dtype=int)
     centres = np.empty((params.n, history.size))
     one = np.ones(1)
     for i, angle in enumerate(history):
@@ -124,6 +125,9 @@ def drive(params: MaterialParameters, history_deg) -> dict[str, np.ndarray]:
         columns["dtau_dC12"][i] = response.dtau_dC12[0]
         columns["gamma_max_deg"][i] = state.gamma_max_deg[0]
         columns["active_surface"][i] = response.active_surface[0]
+        columns["branch_surface"][i] = state.active[0]
+        columns["branch_direction"][i] = state.direction[0]
+        columns["table_row"][i] = state.row[0]
         centres[:, i] = state.centres[:, 0]
     for k in range(params.n):
         columns[f"centre_{k + 1}"] = centres[k]

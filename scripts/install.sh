@@ -18,6 +18,7 @@ venv=${DRAPE_VENV:-$repo/.venv}
 apt_packages=(
   python3-dolfinx python3-petsc4py python3-mpi4py python3-gmsh
   python3-numpy python3-scipy python3-matplotlib python3-h5py
+  python3-numba   # the law's compiled kernel (drape/law/kernel.py)
   python3-pytest python3-pytest-timeout python3-hypothesis
   python3-venv python3-pip python3-setuptools python3-wheel
   openmpi-bin

@@ -29,16 +29,14 @@ def run_history(law: NestedSurfaceLaw, gamma_t_deg, n_points: int | None = None)
 
 
 def stack_states(states: list[LawState]) -> LawState:
-    return LawState(np.concatenate([s.gamma_p for s in states]),
-                    np.concatenate([s.centres for s in states], axis=1),
-                    np.concatenate([s.gamma_max_deg for s in states]))
+    return LawState.stack(states)
 
 
 def surfaces_of(params: MaterialParameters, state: LawState):
-    """Centres c_0..c_n and radii R_0..R_n of a state, (n+1, N) each."""
+    """Centres c_0..c_n and radii R_0..R_n of a state (with its latched Table-2 row),
+    (n+1, N) each."""
     gp = state.gamma_p
-    row = np.searchsorted(params.surfaces.gamma_max_deg, state.gamma_max_deg, side="right") - 1
-    a = params.a_rows()[row].T                     # (n+1, N)
+    a = params.a_rows()[state.row].T                    # (n+1, N)
     radii = np.asarray(params.Sy)[:, None] + a * polynomial(params.A, gp)[None, :]
     centres = np.vstack([polynomial(params.Q, gp)[None, :], state.centres])
     return centres, radii
