@@ -86,7 +86,7 @@ def shear_angle_deg(C11, C22, C12):
 
 
 @jit
-def chain(x, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR):
+def chain(x, k, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR):
     """Centres c_0..c_k, radii R_0..R_k and their slopes d/dgp at gp = x, for surfaces 0..k
     in their current modes: 0 free (a passive surface stays at its anchor, the active k moves
     by its own law anchor + h_k (x - x_anchor)), -1 / +1 carried at the lower / upper bound
@@ -96,12 +96,12 @@ def chain(x, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR):
     c[0], dc[0] = q, dq
     R[0], dR[0] = sy[0] + alpha, dalpha
     for j in range(1, k + 1):
-        R[j] = sy[j] + a[j] * alpha
-        dR[j] = a[j] * dalpha
+        R[j] = sy[j] + a[row, j] * alpha
+        dR[j] = a[row, j] * dalpha
         gap, dgap = R[j - 1] - R[j], dR[j - 1] - dR[j]
         if mode[j] == 0:
             if j == k:
-                c[j], dc[j] = anchor[j] + h[j] * (x - x_anchor), h[j]
+                c[j], dc[j] = anchor[j] + h[row, j] * (x - x_anchor), h[row, j]
             else:
                 c[j], dc[j] = anchor[j], 0.0
         elif mode[j] < 0:
@@ -112,7 +112,7 @@ def chain(x, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR):
 
 
 @jit
-def event_function(index, k, sigma, mode, h, c, dc, R, dR):
+def event_function(index, k, sigma, mode, h, row, c, dc, R, dR):
     """Event function ``index`` (2 j: surface j's lower bound or its release, 2 j + 1: its
     upper bound) from an evaluated chain: positive while nothing happens. Returns the value
     and its slope along the march (d/ds, s = sigma (gp - start)); the slope is NaN for release
@@ -120,7 +120,7 @@ def event_function(index, k, sigma, mode, h, c, dc, R, dR):
     j = index // 2
     upper = index % 2 == 1
     gap, dgap = R[j - 1] - R[j], dR[j - 1] - dR[j]
-    speed = h[j] if j == k else 0.0       # the free motion's d c_j / d gp
+    speed = h[row, j] if j == k else 0.0       # the free motion's d c_j / d gp
     # (written so that a negated history gives exactly the mirrored values)
     if mode[j] == 0:
         if upper:
@@ -143,17 +143,17 @@ def phi(x, k, sigma, C12, two_mu_ksh, c, dc, R, dR):
 
 
 @jit
-def settle_modes(x, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A, two_mu_ksh, c, dc, R, dR):
+def settle_modes(x, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A, two_mu_ksh, c, dc, R, dR):
     """At gp = x, with every anchor at the surfaces' positions there, decide each surface's
     mode from the outside in: a free surface touching a bound that pushes it is carried (the
     active surface touching its parent's leading edge hands over instead, rule 6), a carried
     surface whose bound no longer pushes is released. Returns the active surface."""
     for _ in range(4 * (k + 2)):
-        chain(x, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR)
+        chain(x, k, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR)
         changed = False
         for j in range(1, k + 1):
             gap, dgap = R[j - 1] - R[j], dR[j - 1] - dR[j]
-            speed = h[j] if j == k else 0.0
+            speed = h[row, j] if j == k else 0.0
             push_low = sigma * ((dc[j - 1] - dgap) - speed) > 0.0
             push_high = sigma * (speed - (dc[j - 1] + dgap)) > 0.0
             if mode[j] == 0:
@@ -180,14 +180,14 @@ def settle_modes(x, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A, two_mu_ksh
 
 
 @jit
-def root_of_phi(x_start, k, sigma, C12, mode, anchor, x_anchor, a, h, sy, Q, A, two_mu_ksh,
+def root_of_phi(x_start, k, sigma, C12, mode, anchor, x_anchor, a, h, row, sy, Q, A, two_mu_ksh,
                 c, dc, R, dR):
     """The gp along sigma from x_start (phi > 0 there) where phi = 0: Newton's method kept
     inside a bracket (bisection where a step leaves it), to round-off."""
     low, high = x_start, sigma * GAMMA_P_LIMIT
     x = x_start
     for _ in range(_MAX_ITERATIONS):
-        chain(x, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR)
+        chain(x, k, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR)
         value, slope = phi(x, k, sigma, C12, two_mu_ksh, c, dc, R, dR)
         if value == 0.0:
             return x
@@ -207,15 +207,15 @@ def root_of_phi(x_start, k, sigma, C12, mode, anchor, x_anchor, a, h, sy, Q, A, 
 
 
 @jit
-def crossing(index, low, high, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A,
+def crossing(index, low, high, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A,
              c, dc, R, dR, slope_of):
     """The first gp from low towards high where event function ``index`` (or, with slope_of,
     minus its slope: its minimum) turns non-positive, given that it is positive at low and
     not at high: the
     Illinois variant of regula falsi, to round-off. Returns the end on the event's side."""
-    f_low = _event_value(low, index, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A,
+    f_low = _event_value(low, index, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A,
                          c, dc, R, dR, slope_of)
-    f_high = _event_value(high, index, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A,
+    f_high = _event_value(high, index, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A,
                           c, dc, R, dR, slope_of)
     kept = 0
     for _ in range(_MAX_ITERATIONS):
@@ -224,7 +224,7 @@ def crossing(index, low, high, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A,
         x = (low * f_high - high * f_low) / (f_high - f_low) if f_high != f_low else math.nan
         if not (min(low, high) < x < max(low, high)):
             x = 0.5 * (low + high)
-        fx = _event_value(x, index, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A,
+        fx = _event_value(x, index, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A,
                           c, dc, R, dR, slope_of)
         if fx > 0.0:
             low, f_low = x, fx
@@ -242,49 +242,47 @@ def crossing(index, low, high, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A,
 
 
 @jit
-def _event_value(x, index, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR,
+def _event_value(x, index, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR,
                  slope_of):
-    chain(x, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR)
-    value, slope = event_function(index, k, sigma, mode, h, c, dc, R, dR)
+    chain(x, k, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR)
+    value, slope = event_function(index, k, sigma, mode, h, row, c, dc, R, dR)
     return -slope if slope_of else value
 
 
 @jit
-def first_event(x_start, x_end, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR,
-                values, slopes):
+def first_event(x_start, x_end, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR,
+                values, slopes, previous_values, previous_slopes):
     """The first event along sigma in (x_start, x_end] with the modes of the segment: returns
     (gp of the event, index of its function), or (x_end, -1) where there is none."""
     count = 2 * (k + 1)
     if k == 0:
         return x_end, -1
-    previous_values, previous_slopes = values[:count], slopes[:count]
-    values, slopes = values[count:], slopes[count:]
-    chain(x_start, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR)
+    chain(x_start, k, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR)
     for i in range(2, count):
-        previous_values[i], previous_slopes[i] = event_function(i, k, sigma, mode, h, c, dc,
-                                                                R, dR)
+        previous_values[i], previous_slopes[i] = event_function(i, k, sigma, mode, h, row, c,
+                                                                dc, R, dR)
     pieces = max(1, int(math.ceil(abs(x_end - x_start) / SCAN_STEP)))
     left = x_start
     for piece in range(1, pieces + 1):
         right = x_end if piece == pieces else x_start + (x_end - x_start) * piece / pieces
-        chain(right, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR)
+        chain(right, k, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR)
         best, best_index = right, -1
         for i in range(2, count):
-            value, slope = event_function(i, k, sigma, mode, h, c, dc, R, dR)
+            value, slope = event_function(i, k, sigma, mode, h, row, c, dc, R, dR)
             values[i], slopes[i] = value, slope
             where = right
             if value < 0.0:
-                where = crossing(i, left, right, k, sigma, mode, anchor, x_anchor, a, h, sy, Q,
+                where = crossing(i, left, right, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q,
                                  A, c, dc, R, dR, False)
             elif previous_values[i] > 0.0 and previous_slopes[i] < 0.0 and slope >= 0.0:
                 # positive at both ends but falling then rising: look at its minimum
-                lowest = crossing(i, left, right, k, sigma, mode, anchor, x_anchor, a, h, sy,
+                lowest = crossing(i, left, right, k, sigma, mode, anchor, x_anchor, a, h, row, sy,
                                   Q, A, c, dc, R, dR, True)
-                least = _event_value(lowest, i, k, sigma, mode, anchor, x_anchor, a, h, sy, Q,
+                least = _event_value(lowest, i, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q,
                                      A, c, dc, R, dR, False)
                 touch = TOUCH * EPS * (abs(c[k - 1]) + abs(c[k]) + R[k - 1])
                 if least < 0.0:
-                    where = crossing(i, left, lowest, k, sigma, mode, anchor, x_anchor, a, h,
+                    where = crossing(i, left, lowest, k, sigma, mode, anchor, x_anchor, a, h, row,
                                      sy, Q, A, c, dc, R, dR, False)
                 elif least <= touch and i // 2 == k and mode[k] == 0 \
                         and (i % 2 == 1) == (sigma > 0):
@@ -308,26 +306,27 @@ def first_event(x_start, x_end, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A
 
 
 @jit
-def update_point(C11, C22, C12, committed_C, gamma_p, centres, gamma_max_deg, active,
-                 direction, row, two_mu_ksh, sy, Q, A, bounds, a_table, h_table, work, mode):
+def update_point(C11, C22, C12, C11_committed, C22_committed, C12_committed, gamma_p, centres,
+                 gamma_max_deg, active, direction, row, two_mu_ksh, sy, Q, A, bounds, a, h,
+                 c, dc, R, dR, anchor, values, slopes, previous_values, previous_slopes, mode):
     """One increment of one point (rules 1-8 of docs/material-law.md).
 
-    In: the current yarn-frame C; the committed state (committed_C: C11, C22, C12 of the
-    committed state; centres c_1..c_n, overwritten with the new ones). Returns
-    (tau, dtau/dC12, gp, gamma_max_deg, active, direction, row, flow), flow the surface active
-    at the end of a plastic increment, ELASTIC (-1) where gp did not move."""
+    In: the current yarn-frame C; the committed state (the yarn-frame C of the committed
+    state; centres c_1..c_n, overwritten with the new ones); the parameters (a, h: Table 2 as
+    (rows, n + 1) arrays); scratch arrays of n + 1 (c .. anchor, mode) and 2 n + 2 (values ..
+    previous_slopes) entries, so that nothing is allocated per point. Returns (tau, dtau/dC12,
+    gp, gamma_max_deg, active, direction, row, flow), flow the surface active at the end of a
+    plastic increment, ELASTIC (-1) where gp did not move."""
     n = sy.shape[0] - 1
-    c, dc, R, dR = work[0], work[1], work[2], work[3]
-    anchor, values, slopes = work[4], work[5], work[6]
-    mode[:] = 0
+    for j in range(n + 1):
+        mode[j] = 0
     x0 = gamma_p
     gamma_max = max(gamma_max_deg, abs(shear_angle_deg(C11, C22, C12)))
-    a, h = a_table[row], h_table[row]
 
     # 1. elastic trial against the innermost surface
     for j in range(1, n + 1):
         anchor[j] = centres[j - 1]
-    chain(x0, n, mode, anchor, x0, a, h, sy, Q, A, c, dc, R, dR)
+    chain(x0, n, mode, anchor, x0, a, h, row, sy, Q, A, c, dc, R, dR)
     sin0 = math.sin(x0)
     tau = two_mu_ksh * (C12 - sin0)
     offset = tau - c[n]
@@ -341,16 +340,15 @@ def update_point(C11, C22, C12, committed_C, gamma_p, centres, gamma_max_deg, ac
         # 2. a new branch (rule 1): split where tau reaches the innermost edge
         tau_split = c[n] + sigma * R[n]
         C12_split = sin0 + tau_split / two_mu_ksh
-        change = C12 - committed_C[2]
-        s = (C12_split - committed_C[2]) / change if change != 0.0 else 1.0
+        change = C12 - C12_committed
+        s = (C12_split - C12_committed) / change if change != 0.0 else 1.0
         s = min(1.0, max(0.0, s))
-        angle = shear_angle_deg(committed_C[0] + s * (C11 - committed_C[0]),
-                                committed_C[1] + s * (C22 - committed_C[1]), C12_split)
+        angle = shear_angle_deg(C11_committed + s * (C11 - C11_committed),
+                                C22_committed + s * (C22 - C22_committed), C12_split)
         row = table_row(bounds, max(gamma_max_deg, abs(angle)))
-        a, h = a_table[row], h_table[row]
         alpha, _ = series(A, x0)
         for j in range(1, n + 1):       # resize at the current gp and re-nest, outside in
-            R[j] = sy[j] + a[j] * alpha
+            R[j] = sy[j] + a[row, j] * alpha
             gap = R[j - 1] - R[j]
             anchor[j] = min(max(anchor[j], c[j - 1] - gap), c[j - 1] + gap)
             c[j] = anchor[j]
@@ -358,23 +356,24 @@ def update_point(C11, C22, C12, committed_C, gamma_p, centres, gamma_max_deg, ac
 
     # 3. the march along gp
     x_anchor = x0
-    k = settle_modes(x0, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A, two_mu_ksh,
+    k = settle_modes(x0, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A, two_mu_ksh,
                      c, dc, R, dR)
     x = x0
     for _ in range(_MAX_EVENTS):
-        chain(x, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR)
+        chain(x, k, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR)
         value, _ = phi(x, k, sigma, C12, two_mu_ksh, c, dc, R, dR)
         if value <= 0.0:
             break
-        x_root = root_of_phi(x, k, sigma, C12, mode, anchor, x_anchor, a, h, sy, Q, A,
+        x_root = root_of_phi(x, k, sigma, C12, mode, anchor, x_anchor, a, h, row, sy, Q, A,
                              two_mu_ksh, c, dc, R, dR)
-        x_event, index = first_event(x, x_root, k, sigma, mode, anchor, x_anchor, a, h, sy, Q,
-                                     A, c, dc, R, dR, values, slopes)
+        x_event, index = first_event(x, x_root, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q,
+                                     A, c, dc, R, dR, values, slopes, previous_values,
+                                     previous_slopes)
         if index < 0:
             x = x_root
             break
         # re-anchor every surface where it is at the event, then switch the event's surface
-        chain(x_event, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR)
+        chain(x_event, k, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR)
         for j in range(1, k + 1):
             anchor[j] = c[j]
         x = x_anchor = x_event
@@ -385,15 +384,15 @@ def update_point(C11, C22, C12, committed_C, gamma_p, centres, gamma_max_deg, ac
             k -= 1                                # the leading edges meet: hand-over
         else:
             mode[j] = 1 if index % 2 == 1 else -1  # reached by its parent's bound
-        k = settle_modes(x, k, sigma, mode, anchor, x_anchor, a, h, sy, Q, A, two_mu_ksh,
+        k = settle_modes(x, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A, two_mu_ksh,
                          c, dc, R, dR)
 
     # 4. the end: surfaces 1..k where the march left them, the inner ones tangent at the
     #    stress point (rule 5), and the consistent tangent (rule 8)
-    alpha = chain(x, k, mode, anchor, x_anchor, a, h, sy, Q, A, c, dc, R, dR)
+    alpha = chain(x, k, mode, anchor, x_anchor, a, h, row, sy, Q, A, c, dc, R, dR)
     tau = two_mu_ksh * (C12 - math.sin(x))
     for j in range(1, n + 1):
-        centres[j - 1] = c[j] if j <= k else tau - sigma * (sy[j] + a[j] * alpha)
+        centres[j - 1] = c[j] if j <= k else tau - sigma * (sy[j] + a[row, j] * alpha)
     if x == x0:
         return tau, two_mu_ksh, x, gamma_max, k, direction, row, ELASTIC
     slope = dc[k] + sigma * dR[k]
@@ -403,22 +402,25 @@ def update_point(C11, C22, C12, committed_C, gamma_p, centres, gamma_max_deg, ac
 
 @jit
 def update_points(C11, C22, C12, committed_C, gamma_p, centres, gamma_max_deg, active,
-                  direction, row, two_mu_ksh, sy, Q, A, bounds, a_table, h_table,
-                  tau, tangent, flow):
+                  direction, row, two_mu_ksh, sy, Q, A, bounds, a, h, tau, tangent, flow):
     """:func:`update_point` for every point. The state arrays (committed_C (3, N), gamma_p,
     centres (n, N), gamma_max_deg, active, direction, row) are overwritten with the new state;
     tau, tangent and flow are written."""
     n = sy.shape[0] - 1
-    work = np.zeros((7, 4 * (n + 1)))
+    scratch = np.zeros((5, n + 1))
+    c, dc, R, dR, anchor = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4]
+    events = np.zeros((4, 2 * n + 2))
+    values, slopes, previous_values, previous_slopes = events[0], events[1], events[2], events[3]
     mode = np.zeros(n + 1, dtype=np.int64)
     point_centres = np.empty(n)
     for i in range(C12.shape[0]):
         for j in range(n):
             point_centres[j] = centres[j, i]
-        committed = committed_C[:, i]
-        result = update_point(C11[i], C22[i], C12[i], committed, gamma_p[i], point_centres,
-                              gamma_max_deg[i], active[i], direction[i], row[i], two_mu_ksh,
-                              sy, Q, A, bounds, a_table, h_table, work, mode)
+        result = update_point(C11[i], C22[i], C12[i], committed_C[0, i], committed_C[1, i],
+                              committed_C[2, i], gamma_p[i], point_centres, gamma_max_deg[i],
+                              active[i], direction[i], row[i], two_mu_ksh, sy, Q, A, bounds,
+                              a, h, c, dc, R, dR, anchor, values, slopes, previous_values,
+                              previous_slopes, mode)
         tau[i], tangent[i], gamma_p[i], gamma_max_deg[i] = result[0], result[1], result[2], \
             result[3]
         active[i], direction[i], row[i], flow[i] = result[4], result[5], result[6], result[7]
