@@ -142,14 +142,13 @@ def parse_rows(text: str) -> tuple[float, ...]:
 
 # --- simulation --------------------------------------------------------------------------------
 
-def fit_indices(gamma_deg, bounds_deg, max_rows: int) -> np.ndarray:
+def fit_indices(gamma_deg, max_rows: int) -> np.ndarray:
     """Rows of the history that the fit simulates: every m-th row (about max_rows in all), every
-    reversal, the last row, and the two rows around each first crossing of a Table-2 bound.
+    reversal and the last row.
 
-    The law's monotone branches do not depend on the increment size (docs/material-law.md), so
-    the thinned history gives the same tau at the kept rows as the full one; the Table-2 row is
-    looked up with the largest angle at the end of an increment, hence the rows kept around each
-    crossing.
+    The law's result does not depend on how a history is cut into increments
+    (docs/material-law.md, version 2), so the thinned history gives the same tau at the kept
+    rows as the full one, as long as it keeps the turning points of the path.
     """
     gamma = np.asarray(gamma_deg, dtype=float)
     n = gamma.size
@@ -159,10 +158,6 @@ def fit_indices(gamma_deg, bounds_deg, max_rows: int) -> np.ndarray:
     keep = set(range(step - 1, n, step)) | {n - 1}
     direction = np.sign(np.diff(np.r_[0.0, gamma]))
     keep |= set(np.nonzero(direction[:-1] != direction[1:])[0].tolist())
-    gamma_max = np.maximum.accumulate(np.abs(gamma))
-    for bound in bounds_deg[1:]:
-        first = np.searchsorted(gamma_max, bound, side="left")
-        keep |= {i for i in (first - 1, first) if 0 <= i < n}
     return np.asarray(sorted(keep))
 
 
@@ -460,7 +455,7 @@ def calibrate(curve: Curve, base: MaterialParameters | None = None, degree: int 
               name: str | None = None, log=print) -> Calibration:
     base = MaterialParameters() if base is None else base
     rows = tuple(float(b) for b in rows)
-    fit_rows = fit_indices(curve.gamma_deg, rows if n_inner else (0.0,), max_fit_rows)
+    fit_rows = fit_indices(curve.gamma_deg, max_fit_rows)
     log(f"drape calibrate: {len(curve)} rows from {curve.source}, fitting on {fit_rows.size}")
     outer, info1 = fit_outer(curve, base, degree, n_inner, fit_rows, log)
     name = name or f"calibrated from {Path(curve.source).name}"

@@ -84,24 +84,23 @@ def test_frame_force_is_the_power_balance_of_the_sheared_square():
 # --- the machinery ----------------------------------------------------------------------------
 
 def test_thinned_history_gives_the_same_tau_at_the_kept_rows():
-    """The premise of --fit-rows: the law's monotone branches do not depend on the increment
-    size, so simulating every m-th row (and each reversal and Table-2 crossing) gives the full
-    history's tau there. Bounds off the increment grid make the crossing rows matter."""
+    """The premise of --fit-rows: the law does not depend on the increment size (version 2 of
+    the reading), so simulating every m-th row and each reversal gives the full history's tau
+    there, Table-2 bounds off the increment grid included."""
     params = MaterialParameters()
     history = cyclic_history([12, 27, -33, 39], 0.3)
     bounds = (0.0, 19.1, 28.05, 32.2, 37.13)
     params = dataclasses.replace(params, surfaces=dataclasses.replace(params.surfaces,
                                                                       gamma_max_deg=bounds))
     full = cal.simulate(params, history)[0]
-    kept = cal.fit_indices(history, bounds, 60)
+    kept = cal.fit_indices(history, 60)
     assert 60 <= kept.size < 0.3 * history.size
     thinned = cal.simulate(params, history[kept])[0]
     assert np.max(np.abs(thinned - full[kept])) < 1e-10 * np.ptp(full)
-    # without the rows around the crossings the thinned history is (measurably) different
-    plain = np.asarray(sorted(set(range(kept[0], history.size, int(np.ceil(history.size / 60))))
-                              | {int(i) for i in np.nonzero(np.diff(np.sign(np.diff(np.r_[0, history]))))[0]}
-                              | {history.size - 1}))
-    assert np.max(np.abs(cal.simulate(params, history[plain])[0] - full[plain])) > 1e-6
+    # without the reversals the path is another one: tau differs
+    reversals = np.nonzero(np.diff(np.sign(np.diff(np.r_[0, history]))))[0]
+    plain = np.setdiff1d(kept, reversals)
+    assert np.max(np.abs(cal.simulate(params, history[plain])[0] - full[plain])) > 1e-3
 
 
 def test_stage1_jacobian_matches_finite_differences():
