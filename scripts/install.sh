@@ -65,4 +65,7 @@ if [ ! -f "$stamp" ] || [ "$repo/pyproject.toml" -nt "$stamp" ] \
   touch "$stamp"
 fi
 
+# Compile the law's kernel now (numba caches it beside the installed module: about 20 s once),
+# so that the first job does not pay for it.
+(cd / && "$venv/bin/python" -c "import drape.law.kernel as k; k.warm_up()")
 (cd / && "$venv/bin/python" -c "import dolfinx, drape; print('drape install: ok, dolfinx', dolfinx.__version__, 'in', '$venv')")

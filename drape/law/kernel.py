@@ -427,3 +427,17 @@ def update_points(C11, C22, C12, committed_C, gamma_p, centres, gamma_max_deg, a
         for j in range(n):
             centres[j, i] = point_centres[j]
         committed_C[0, i], committed_C[1, i], committed_C[2, i] = C11[i], C22[i], C12[i]
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the kernel for the argument types drape uses: one
+    plastic increment of one point with the paper's three surfaces."""
+    n, rows = 2, 2
+    state = [np.array([[1.0], [1.0], [0.0]]), np.zeros(1), np.zeros((n, 1)), np.zeros(1),
+             np.full(1, n, dtype=np.int64), np.zeros(1, dtype=np.int64),
+             np.zeros(1, dtype=np.int64)]
+    table = np.ones((rows, n + 1))
+    update_points(np.ones(1), np.ones(1), np.full(1, 0.1), *state, 284.0,
+                  np.array([0.0081, 0.006, 0.0025]), np.full(8, 0.1), np.full(8, 0.1),
+                  np.array([0.0, 19.0]), table, table, np.empty(1), np.empty(1),
+                  np.empty(1, dtype=np.int64))
