@@ -374,7 +374,8 @@ def fit_monotonic(data: SeriesData, base, degree: int = 8, n_inner: int = 2,
     design = np.hstack([np.ones((gp.size, 1)), gp[:, None] ** np.arange(1, degree + 1)[None, :]])
     tau_range = float(np.ptp(tau)) or 1.0
     floor = 1e-6 * tau_range
-    stage1 = lsq_linear(design, tau, bounds=(np.r_[floor, np.zeros(degree)], np.inf))
+    stage1 = lsq_linear(design, tau, bounds=(np.r_[floor, np.zeros(degree)], np.inf),
+                        method="bvls")
     theta1 = stage1.x
     edge_hi = np.radians(hi)
     base_rise = float(polynomial(base.Q, [edge_hi])[0] + polynomial(base.A, [edge_hi])[0])
@@ -413,8 +414,8 @@ def fit_monotonic(data: SeriesData, base, degree: int = 8, n_inner: int = 2,
             current = best[1]
             delta = (monotonic_tau(params(current), gamma)
                      - monotonic_tau(params(current, nested=False), gamma))
-            x = lsq_linear(design, tau - delta, bounds=(np.r_[floor, np.zeros(degree)],
-                                                        np.inf)).x
+            x = lsq_linear(design, tau - delta, method="bvls",
+                           bounds=(np.r_[floor, np.zeros(degree)], np.inf)).x
             error = _rms(monotonic_tau(params(x), gamma), tau)
             log(f"  stage 2, iteration {iteration + 1} (nested model simulated, {n_inner} inner "
                 f"surfaces with the base's ratios, h x {h_scale:.3g}): RMS {error:.4g} N/mm")

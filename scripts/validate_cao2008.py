@@ -92,6 +92,10 @@ def main(argv=None) -> int:
     parser.add_argument("--output", default="results/validation", metavar="DIR")
     parser.add_argument("--configs", default="configs/validation", metavar="DIR",
                         help="folder of the bias-extension configs (default configs/validation)")
+    parser.add_argument("--specimens", default=None, metavar="A,B",
+                        help="only these configs of --configs, by name (e.g. 115x230)")
+    parser.add_argument("--series", default=None, metavar="A,B",
+                        help="calibrate on these laboratories only (drape calibrate --series)")
     args = parser.parse_args(argv)
     out = (REPO / args.output).resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -99,11 +103,17 @@ def main(argv=None) -> int:
 
     # 1. calibrate
     run([exe, "calibrate", str(DATA / FABRICS[args.fabric]), "--output", str(out / "calibration"),
-         "--overwrite", "--name", f"Twintex {args.fabric}, Cao et al. 2008 {FABRICS[args.fabric]}"])
+         "--overwrite", "--name", f"Twintex {args.fabric}, Cao et al. 2008 {FABRICS[args.fabric]}"]
+        + (["--series", args.series] if args.series else []))
     material = out / "calibration" / "material.toml"
 
     # 2. the bias extensions
     configs = sorted((REPO / args.configs).glob("*.toml"))
+    if args.specimens:
+        wanted = {name.strip() for name in args.specimens.split(",")}
+        configs = [c for c in configs if c.stem in wanted]
+        if not configs:
+            parser.error(f"no config named {args.specimens} in {args.configs}")
     results = {}
     for config in configs:
         W, H = specimen_of(config)
