@@ -1,6 +1,7 @@
 """Validation on measured data: calibrate on picture frames, predict bias extensions.
 
     .venv/bin/python scripts/validate_cao2008.py [--fabric plain-weave] [--output DIR]
+    .venv/bin/python scripts/validate_cao2008.py --docs docs/validation   # docs/validation.md
 
 The chain (docs/validation.md), deterministic, serial, about 2 minutes on one core:
 
@@ -94,6 +95,9 @@ def main(argv=None) -> int:
                         help="folder of the bias-extension configs (default configs/validation)")
     parser.add_argument("--specimens", default=None, metavar="A,B",
                         help="only these configs of --configs, by name (e.g. 115x230)")
+    parser.add_argument("--docs", default=None, metavar="DIR",
+                        help="also copy the PNGs and deviations.md there (docs/validation: the "
+                             "figures of docs/validation.md)")
     parser.add_argument("--series", default=None, metavar="A,B",
                         help="calibrate on these laboratories only (drape calibrate --series)")
     args = parser.parse_args(argv)
@@ -133,6 +137,15 @@ def main(argv=None) -> int:
     plot(out, results, labs, angle_measured, fig39, material, args.fabric)
     print(f"validate_cao2008: wrote {out}/force_displacement.png, central_angle.png, "
           f"normalised_force.png, deviations.csv, deviations.md")
+    if args.docs:
+        import shutil
+        docs = (REPO / args.docs).resolve()
+        docs.mkdir(parents=True, exist_ok=True)
+        for name in ("force_displacement.png", "central_angle.png", "normalised_force.png",
+                     "deviations.md"):
+            shutil.copyfile(out / name, docs / name)
+        shutil.copyfile(out / "calibration" / "calibration.png", docs / "calibration.png")
+        print(f"validate_cao2008: copied the figures and the table to {docs}")
     return 0
 
 
