@@ -572,8 +572,8 @@ def main(args) -> int:
         if not cyclic:
             return measured.main(args, base, data)
         if len(data.series) > 1:
-            raise InputError(f"series {', '.join(map(repr, cyclic))} have unloading", key="--series",
-                             value=args.series, source=args.data,
+            raise InputError(f"series {', '.join(map(repr, cyclic))} have unloading",
+                             key="--series", value=args.series, source=args.data,
                              expected="one series for a cyclic fit, or only monotonic series")
         only = data.series[0]
         if len(only.tau) < 10:

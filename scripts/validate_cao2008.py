@@ -180,10 +180,10 @@ def write_table(out: Path, rows, fabric: str) -> None:
         writer.writerow(names)
         for row in rows:
             writer.writerow([row.get(n, "") for n in names])
-    lines = [f"Fabric: {fabric}. d: where the kinematic central angle is gamma; FE centre: the "
-             "FE's central angle there.", "",
+    lines = [f"Fabric: {fabric}. d: where the kinematic central angle is gamma;",
+             "FE centre: the FE's central angle there.", "",
              "| specimen (mm) | γ kin. | d (mm) | FE centre | FE force (N) | labs (N) | "
-             "FE / lab mean | in spread |", "|---|---|---|---|---|---|---|---|"]
+             "FE/mean | inside |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         ratio = f"{r['fe_over_lab_mean']:.2f}" if "fe_over_lab_mean" in r else "–"
         spread = ("yes" if r["within_spread"] else "no") if "within_spread" in r else "–"

@@ -88,7 +88,8 @@ def test_every_picture_frame_file_is_read_and_agrees_with_fig28(name):
         assert s.tau.size > 40 and np.all(np.isfinite(s.tau)) and measured.is_monotonic(s)
     if figure not in expected_quantity:
         return
-    reference = {"".join(s.name.split()): s for s in measured.read_series(DATA / "cao2008_fig28.csv").series}
+    fig28 = measured.read_series(DATA / "cao2008_fig28.csv")
+    reference = {"".join(s.name.split()): s for s in fig28.series}
     ratios = []
     for s in data.series:
         ref = reference["".join(s.name.split())]
@@ -134,7 +135,8 @@ def test_a_known_loading_edge_is_recovered(tmp_path):
     with path.open("w", newline="") as stream:
         writer = csv.writer(stream)
         writer.writerow(["series", "shear_angle_deg", "tau"])
-        for name, angles in (("lab A", np.arange(0.5, 40.01, 0.5)), ("lab B", np.arange(1, 30.01, 0.5))):
+        for name, angles in (("lab A", np.arange(0.5, 40.01, 0.5)),
+                             ("lab B", np.arange(1, 30.01, 0.5))):
             for g, t in zip(angles, measured.monotonic_tau(truth.with_surfaces(0), angles)):
                 writer.writerow([name, g, t])
     data = measured.read_series(path, ["lab A", "lab B"])
@@ -148,7 +150,8 @@ def test_a_known_loading_edge_is_recovered(tmp_path):
 
 def test_series_selection_and_bad_input(tmp_path, capsys):
     from drape.cli import main
-    data = measured.read_series(DATA / "cao2008_fig28.csv", measured.parse_series('HKUST,"KUL 3rd."'))
+    data = measured.read_series(DATA / "cao2008_fig28.csv",
+                                measured.parse_series('HKUST,"KUL 3rd."'))
     assert data.names == ["HKUST", "KUL 3rd."]
     for args, words in (
             (["--series", "HKUST,NOPE"], ["--series", "'NOPE'", "unknown series", "KUL 3rd."]),
@@ -159,7 +162,8 @@ def test_series_selection_and_bad_input(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and all(w in err for w in words), err
     # forces need the sizes
-    assert main(["calibrate", str(DATA / "cao2008_fig22.csv"), "--output", str(tmp_path / "y")]) == 2
+    assert main(["calibrate", str(DATA / "cao2008_fig22.csv"), "--output",
+                 str(tmp_path / "y")]) == 2
     err = capsys.readouterr().err
     assert "--frame-side" in err and "needs the frame side" in err
     assert main(["calibrate", str(DATA / "cao2008_fig22.csv"), "--frame-side", "HKUST=180",
