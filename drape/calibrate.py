@@ -566,6 +566,7 @@ def main(args) -> int:
     rows = parse_rows(args.rows)
     from drape import measured
     if measured.is_series_file(args.data):
+        measured.parse_angle_range(args.angle_range)
         data = measured.read_series(args.data, measured.parse_series(args.series), args.quantity,
                                     args.frame_side, args.fabric_side)
         cyclic = [s.name for s in data.series if not measured.is_monotonic(s)]
