@@ -148,6 +148,7 @@ def test_a_known_loading_edge_is_recovered(tmp_path):
     assert fit.rms_one_surface < 1e-7
 
 
+@pytest.mark.serial
 def test_series_selection_and_bad_input(tmp_path, capsys):
     from drape.cli import main
     data = measured.read_series(DATA / "cao2008_fig28.csv",
@@ -189,8 +190,9 @@ def zone_energy_force(params, W, H, d):
 
 def test_bias_extension_with_the_calibrated_material(comm, shared_tmp):
     """115 x 230 mm to d = 6 mm (kinematic 6.2 deg), coarse: the run with the material fitted
-    in memory equals the run with the material file written out (every step's force and
-    central angle), the force is the zone energy's, the centre follows the kinematics."""
+    in memory equals the run with the material file written out (the same parameters exactly;
+    every step's force and central angle identical serially, 4e-12 apart on 2 ranks, asserted
+    1e-10), the force is the zone energy's, the centre follows the kinematics."""
     from drape.job import Job, load_job
     from drape.run import run_job
 
@@ -206,13 +208,13 @@ def test_bias_extension_with_the_calibrated_material(comm, shared_tmp):
     in_memory = load_job(config, overrides=short)
     in_memory = Job(in_memory.config, in_memory.path, fit.nested)
     from_file = load_job(config, overrides=short + [f"material={path}"])
-    assert from_file.params == load_material(path)
+    assert from_file.params == dataclasses.replace(fit.nested)   # the file holds the fit, exactly
     runs = [run_job(job, comm, output=shared_tmp / name).rows
             for name, job in (("memory", in_memory), ("file", from_file))]
     assert len(runs[0]) == len(runs[1]) >= 4
     for a, b in zip(*runs):
-        assert a["force_N"] == pytest.approx(b["force_N"], rel=1e-12, abs=1e-12)
-        assert a["central_shear_deg"] == pytest.approx(b["central_shear_deg"], abs=1e-12)
+        assert a["force_N"] == pytest.approx(b["force_N"], rel=1e-10, abs=1e-12)
+        assert a["central_shear_deg"] == pytest.approx(b["central_shear_deg"], abs=1e-10)
     last = runs[1][-1]
     assert last["displacement_mm"] == 6.0
     assert last["central_shear_deg"] == pytest.approx(last["kinematic_shear_deg"], abs=0.05)
