@@ -330,12 +330,17 @@ def monotonic_history(hi_deg: float, bounds_deg=(), step_deg: float = 0.5) -> np
 
 
 def monotonic_tau(params, gamma_deg, step_deg: float = 0.5):
-    """tau of a virgin monotonic loading to every |gamma| (interpolated on a 0.5-deg history)."""
-    from drape.calibrate import simulate
+    """tau of a virgin monotonic loading to every |gamma| (interpolated on a 0.5-deg history;
+    one law increment per history angle, the picture frame's C11 = C22 = 1, C12 = sin gamma)."""
+    from drape.law.nested_surface import LawState, NestedSurfaceLaw
     g = np.abs(np.asarray(gamma_deg, dtype=float))
     history = monotonic_history(float(g.max()) if g.size else step_deg,
                                 params.surfaces.gamma_max_deg if params.n else (), step_deg)
-    tau, *_ = simulate(params, history)
+    law, state, one = NestedSurfaceLaw(params), LawState.virgin(1, params.n), np.ones(1)
+    tau = np.empty(history.size)
+    for i, s in enumerate(np.sin(np.radians(history))):
+        response = law.update(state, one, one, np.array([s]))
+        state, tau[i] = response.trial, response.tau[0]
     return np.interp(g, np.r_[0.0, history], np.r_[0.0, tau])
 
 
