@@ -227,3 +227,34 @@ def test_bias_extension_with_the_calibrated_material(comm, shared_tmp):
         assert float(written[-1]["force_N"]) == pytest.approx(last["force_N"], rel=1e-12)
         assert float(written[-1]["time_s"]) == pytest.approx(60 * 6.0 / 10.0)
         assert (shared_tmp / "file" / "bias_extension.png").stat().st_size > 10_000
+
+
+@pytest.mark.serial
+def test_a_series_with_unloading_takes_the_cyclic_fit(tmp_path, capsys):
+    """A series file whose one selected series reverses is fitted as a cyclic curve (the
+    outer surface's centre and radius both fitted; no 'monotonic' note), the same as the
+    gamma_t_deg file of the same rows; two series with unloading are refused."""
+    from drape.cli import main
+    from drape.picture_frame import cyclic_history, drive
+    truth = MaterialParameters().with_surfaces(0)
+    history = cyclic_history([10, 20, 30, -30], 0.5)
+    tau = drive(truth, history)["tau"]
+    series = tmp_path / "series.csv"
+    plain = tmp_path / "plain.csv"
+    series.write_text("# a comment\nseries,shear_angle_deg,tau\n" + "".join(
+        f"{lab},{g!r},{t!r}\n" for lab in ("A", "B") for g, t in zip(history, tau)))
+    plain.write_text("gamma_t_deg,tau\n" + "".join(f"{g!r},{t!r}\n" for g, t in zip(history, tau)))
+    fits = []
+    for name, args in (("series", [str(series), "--series", "B"]), ("plain", [str(plain)])):
+        assert main(["calibrate", *args, "--surfaces", "0", "--output",
+                     str(tmp_path / name)]) == 0
+        assert "monotonic" not in capsys.readouterr().out
+        fits.append(load_material(tmp_path / name / "material.toml"))
+    assert fits[0].Q == fits[1].Q and fits[0].A == fits[1].A and fits[0].Sy == fits[1].Sy
+    check = cyclic_history([15, 25, -20], 0.5)
+    expected = drive(truth, check)["tau"]
+    error = np.sqrt(np.mean((drive(fits[0], check)["tau"] - expected) ** 2))
+    assert error < 1e-3 * np.ptp(expected)
+    assert main(["calibrate", str(series), "--output", str(tmp_path / "both")]) == 2
+    err = capsys.readouterr().err
+    assert "'A', 'B' have unloading" in err and "--series" in err
