@@ -6,6 +6,12 @@ either tau (the projected shear stress, N/mm) or force (the frame force, N, with
 giving the frame's side L in mm; tau = 2 F sin(pi/4 - gamma/2) / (L cos gamma)). The curve
 must be cyclic: at least one loading and one unloading branch.
 
+Published curves (a first column 'series', e.g. data/cao2008/) are read by drape.measured:
+--series picks some, the measured column is converted to tau with --frame-side/--fabric-side
+(energy normalisation); monotonic series fit the outer surface's loading edge within
+--angle-range, the inner surfaces keeping the base material's ratios (docs/calibration.md,
+"Published curves"); one series with unloading is fitted as below.
+
 Stage 1, the outer surface: the one-surface model (Q_1..Q_d, A_1..A_d and Sy_0) is fitted with a
 robust loss, first as a linear least-squares problem (the plastic angle follows from the data and
 Ksh; loading rows lie on q + Sy_0 + alpha, unloading rows on q - Sy_0 - alpha), then by simulating
@@ -512,7 +518,9 @@ RESULT_FILES = ("material.toml", "calibration.csv", "calibration.png")
 def add_arguments(parser) -> None:
     parser.add_argument("data", metavar="CSV",
                         help="measured curve: columns gamma_t_deg and tau (N/mm), or "
-                             "gamma_t_deg and force (N) with --frame-side; one increment per row")
+                             "gamma_t_deg and force (N) with --frame-side; one increment per row; "
+                             "or published curves: series, shear_angle_deg and a measured "
+                             "column (docs/calibration.md)")
     parser.add_argument("--frame-side", default=None, metavar="MM",
                         help="side L of the picture frame (mm, hinge to hinge): read the force "
                              "column (N) and convert it, tau = 2 F sin(pi/4 - gamma/2) / "
