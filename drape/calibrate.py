@@ -6,6 +6,12 @@ either tau (the projected shear stress, N/mm) or force (the frame force, N, with
 giving the frame's side L in mm; tau = 2 F sin(pi/4 - gamma/2) / (L cos gamma)). The curve
 must be cyclic: at least one loading and one unloading branch.
 
+Published curves (a first column 'series', e.g. data/cao2008/) are read by drape.measured:
+--series picks some, the measured column is converted to tau with --frame-side/--fabric-side
+(energy normalisation); monotonic series fit the outer surface's loading edge within
+--angle-range, the inner surfaces keeping the base material's ratios (docs/calibration.md,
+"Published curves"); one series with unloading is fitted as below.
+
 Stage 1, the outer surface: the one-surface model (Q_1..Q_d, A_1..A_d and Sy_0) is fitted with a
 robust loss, first as a linear least-squares problem (the plastic angle follows from the data and
 Ksh; loading rows lie on q + Sy_0 + alpha, unloading rows on q - Sy_0 - alpha), then by simulating
@@ -32,6 +38,7 @@ from drape.errors import InputError, RunFailed
 from drape.law.nested_surface import LawState, NestedSurfaceLaw
 from drape.law.parameters import (PAPER_GAMMA_MAX_DEG, MaterialParameters, SurfaceTable,
                                   load_material, material_toml, polynomial)
+from drape.measured import QUANTITIES
 from drape.picture_frame import frame_tau
 
 HELP = "fit the law to a measured picture-frame curve (CSV) -> material TOML + PNG"
@@ -506,10 +513,27 @@ RESULT_FILES = ("material.toml", "calibration.csv", "calibration.png")
 def add_arguments(parser) -> None:
     parser.add_argument("data", metavar="CSV",
                         help="measured curve: columns gamma_t_deg and tau (N/mm), or "
-                             "gamma_t_deg and force (N) with --frame-side; one increment per row")
-    parser.add_argument("--frame-side", type=float, default=None, metavar="MM",
-                        help="side L of the picture frame (mm): read the force column (N) and "
-                             "convert it, tau = 2 F sin(pi/4 - gamma/2) / (L cos gamma)")
+                             "gamma_t_deg and force (N) with --frame-side; one increment per row; "
+                             "or published curves: series, shear_angle_deg and a measured "
+                             "column (docs/calibration.md)")
+    parser.add_argument("--frame-side", default=None, metavar="MM",
+                        help="side L of the picture frame (mm, hinge to hinge): read the force "
+                             "column (N) and convert it, tau = 2 F sin(pi/4 - gamma/2) / "
+                             "(L cos gamma); for a file with a series column, MM or "
+                             "NAME=MM,NAME=MM per series (NAME: a series or its first word)")
+    parser.add_argument("--fabric-side", default=None, metavar="MM",
+                        help="series files: side of the sheared fabric square (mm), MM or "
+                             "NAME=MM,... (needed with forces; tau = 2 F_s L_frame / "
+                             "L_fabric^2, docs/calibration.md)")
+    parser.add_argument("--series", default=None, metavar="A,B,...",
+                        help="series files: the series to fit, comma-separated, CSV quoting "
+                             "(e.g. HKUST,UN,\"KUL 3rd.\"); default every series")
+    parser.add_argument("--quantity", default=None, metavar="NAME",
+                        help="series files: what the measured column holds, when its name does "
+                             "not say it: " + ", ".join(QUANTITIES))
+    parser.add_argument("--angle-range", default="0,35", metavar="LO,HI",
+                        help="series files with monotonic data: fit the points within LO..HI "
+                             "degrees (default 0,35, where the labs of Cao et al. 2008 agree)")
     parser.add_argument("--material", default=None, metavar="FILE",
                         help="material TOML giving K1, K2, Ksh and mu, which are not fitted "
                              "(default: the paper's values)")
@@ -543,7 +567,34 @@ def main(args) -> int:
                              expected=f"an integer from {lo} to {hi}")
     base = MaterialParameters() if args.material is None else load_material(args.material)
     rows = parse_rows(args.rows)
-    curve = read_curve(args.data, args.frame_side)
+    from drape import measured
+    if measured.is_series_file(args.data):
+        measured.parse_angle_range(args.angle_range)
+        data = measured.read_series(args.data, measured.parse_series(args.series), args.quantity,
+                                    args.frame_side, args.fabric_side)
+        cyclic = [s.name for s in data.series if not measured.is_monotonic(s)]
+        if not cyclic:
+            return measured.main(args, base, data)
+        if len(data.series) > 1:
+            raise InputError(f"series {', '.join(map(repr, cyclic))} have unloading",
+                             key="--series", value=args.series, source=args.data,
+                             expected="one series for a cyclic fit, or only monotonic series")
+        only = data.series[0]
+        if len(only.tau) < 10:
+            raise InputError(f"{len(only.tau)} data rows", source=args.data,
+                             expected="at least 10 rows, one per increment of a cyclic test")
+        curve = Curve(only.gamma_deg, only.tau, f"{args.data} [{only.name}]", data.column)
+        args.frame_side = None
+    elif args.frame_side is not None:
+        try:
+            args.frame_side = float(args.frame_side)
+        except ValueError:
+            raise InputError("not a frame side (sides per series need a file with a series "
+                             "column)", key="--frame-side", value=args.frame_side,
+                             expected="the side of the picture frame in mm, a number > 0"
+                             ) from None
+    if not measured.is_series_file(args.data):
+        curve = read_curve(args.data, args.frame_side)
     output = Path(args.output)
     claim(output, RESULT_FILES, overwrite=args.overwrite)
     output.mkdir(parents=True, exist_ok=True)

@@ -200,6 +200,21 @@ class PictureFrameConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class BiasExtensionConfig:
+    """Report a bias-extension test (rectangle, yarns at +-45 deg, one end pulled along x):
+    force, central shear angle and the kinematic angle against the clamp displacement."""
+
+    displacement: str = setting("", "name of the history giving the clamp displacement d (mm)")
+    pulled: str = setting("right", "the end pulled along x by d, 'right' or 'left'; its x "
+                          "reaction is the force")
+    centre_radius: float | None = setting(
+        None, "the central shear angle is the mean absolute gamma_t of the law's points within "
+        "this distance of the blank's centre (default: a tenth of the width)", positive, "mm")
+    speed: float = setting(5.0, "crosshead speed, for the time column (the law does not depend "
+                           "on the rate)", positive, "mm/min")
+
+
+@dataclasses.dataclass(frozen=True)
 class ProcessConfig:
     """A forming job: the punch moves down by the stroke (linearly in the load factor t) while
     the blank holder presses the blank onto the die with a constant force (docs/forming.md)."""
@@ -255,6 +270,8 @@ class JobConfig:
     boundary: tuple[BoundaryConfig, ...] = setting((), "prescribed displacements ([[boundary]])")
     output: OutputConfig = setting(OutputConfig(), "results")
     picture_frame: PictureFrameConfig | None = setting(None, "frame-force report (optional)")
+    bias_extension: BiasExtensionConfig | None = setting(
+        None, "bias-extension report (optional)")
     process: ProcessConfig | None = setting(None, "a forming job: punch stroke, holder force, "
                                             "locking angle (optional; needs [tools])")
     tools: ToolsConfig | None = setting(None, "the rigid tools of a forming job "
@@ -294,6 +311,24 @@ class JobConfig:
             if blank.shape != "rectangle" or not math.isclose(blank.length, blank.width):
                 raise InputError("the frame force needs a square blank", key="picture_frame",
                                  expected="blank.shape = \"rectangle\" with length = width")
+
+        if self.bias_extension is not None:
+            bias = self.bias_extension
+            if bias.displacement not in self.history:
+                raise InputError("not a history of this job", key="bias_extension.displacement",
+                                 value=bias.displacement,
+                                 expected="one of the names under [history]: " +
+                                 (", ".join(self.history) or "(none defined)"))
+            if bias.pulled not in ("left", "right"):
+                raise InputError("not an end of the rectangle", key="bias_extension.pulled",
+                                 value=bias.pulled, expected="'right' or 'left'")
+            blank = self.blank
+            if (blank.shape != "rectangle" or blank.length <= blank.width
+                    or not math.isclose(abs(blank.yarn_angle), 45.0)):
+                raise InputError("the bias-extension report needs a rectangle longer than wide "
+                                 "with yarns at +-45 deg", key="bias_extension",
+                                 expected="blank.shape = \"rectangle\", length > width, "
+                                          "yarn_angle = 45 or -45")
 
     def _check_mesh_size(self):
         """At least MIN_ELEMENTS_ACROSS elements across the blank's smallest extent."""

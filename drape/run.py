@@ -151,7 +151,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     """
     from mpi4py import MPI
 
-    from drape import frame_force
+    from drape import bias_extension, frame_force
     from drape.checkpoint import Checkpoints, rewind_outputs
     from drape.constraints import PrescribedMotion
     from drape.errors import InputError, Interrupted, RunFailed
@@ -271,6 +271,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             row["frame_force_from_tau"] = float(frame_force.closed_form(side, angle, row["tau_mean"]))
             frame_rows.append({"step": step, "t": t, "angle_deg": angle, **{
                 k: row[k] for k in ("frame_force", "frame_force_from_tau", "tau_mean")}})
+        if config.bias_extension is not None:
+            row.update(bias_extension.measure(config, comm, problem, row))
         force.destroy()
         row["seconds"] = seconds
         rows.append(row)
@@ -338,6 +340,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         solver.close()
         if frame is not None and comm.rank == 0 and len(frame_rows) > 1:
             frame_force.write(folder, side, frame_rows)
+        if config.bias_extension is not None and comm.rank == 0 and len(rows) > 1:
+            bias_extension.write(folder, rows, config.title)
         if forming is not None and len(rows) > 1:
             forming.finish(folder, rows, time.perf_counter() - started)
     checkpoints.finished()
@@ -351,7 +355,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
 #: removed with them by --overwrite
 ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "checkpoint.h5",
-                "frame_force.csv", "frame_force.png")
+                "frame_force.csv", "frame_force.png", "bias_extension.csv", "bias_extension.png")
 
 
 def _quiet_jit_logging() -> None:

@@ -101,6 +101,9 @@ uz = "0"
 #: a measured picture-frame curve for calibrate (a cycle to 10 deg and back)
 CURVE = "gamma_t_deg,tau\n" + "".join(f"{a:g},{0.001 * a:g}\n" for a in
                                         list(range(0, 11)) + list(range(9, -1, -1)))
+#: published picture-frame curves (a series column, monotonic), as in data/cao2008
+SERIES = "series,shear_angle_deg,shear_force_N\n" + "".join(
+    f"{lab},{a},{0.1 * a:g}\n" for lab in ("HKUST", "UN") for a in range(0, 40))
 
 
 def edit(text: str, old: str, new: str) -> str:
@@ -269,6 +272,9 @@ CASES: list[Case] = [
     Case("run-picture-frame-angle", "`[picture_frame] angle = \"phi\"`: no such history", RUN,
          job(JOB + "\n[picture_frame]\nangle = \"phi\"\n"), "job.toml", "picture_frame.angle",
          "'phi'", "one of the names under [history]: d"),
+    Case("run-bias-extension-history", "`[bias_extension] displacement = \"u\"`: no such history",
+         RUN, job(JOB + "\n[bias_extension]\ndisplacement = \"u\"\n"), "job.toml",
+         "bias_extension.displacement", "'u'", "one of the names under [history]: d"),
     Case("run-picture-frame-square", "`[picture_frame]` on a 100 x 50 mm blank", RUN,
          job(JOB + "\n[picture_frame]\nangle = \"d\"\n"), "job.toml", "picture_frame", None,
          "blank.shape = \"rectangle\" with length = width"),
@@ -389,6 +395,15 @@ CASES: list[Case] = [
          {"curve.csv": CURVE}, "--rows", None, "'0,30,20'", "0 < b1 < b2 < ..."),
     Case("cal-frame-side", "`--frame-side=-100`", ("calibrate", "curve.csv", "--frame-side=-100"),
          {"curve.csv": CURVE}, "--frame-side", None, "-100.0", "the side of the picture frame in mm"),
+    Case("cal-series", "`--series UT`: not a series of the file", ("calibrate", "pf.csv",
+         "--series", "UT"), {"pf.csv": SERIES}, None, "--series", "'UT'",
+         "series of pf.csv: HKUST, UN", ("unknown series",)),
+    Case("cal-sides", "forces per series without the fabric's side",
+         ("calibrate", "pf.csv", "--frame-side", "HKUST=180,UN=145"), {"pf.csv": SERIES},
+         "pf.csv", "--fabric-side", None, "--fabric-side MM (every series) or NAME=MM",
+         ("series 'HKUST'",)),
+    Case("cal-angle-range", "`--angle-range 35,10`", ("calibrate", "pf.csv", "--angle-range",
+         "35,10"), {"pf.csv": SERIES}, None, "--angle-range", "'35,10'", "LO,HI in degrees"),
     Case("cal-material", "`--material notes.txt`: not TOML",
          ("calibrate", "curve.csv", "--material", "notes.txt"),
          {"curve.csv": CURVE, "notes.txt": "K1: 10000\n"}, "notes.txt", None, None, "TOML syntax",
