@@ -11,7 +11,8 @@ from drape.errors import InputError
 from drape.law.parameters import MaterialParameters
 from drape.picture_frame import cyclic_history, drive, parse_cycles, read_history
 
-COLUMNS = ["gamma_t_deg", "tau", "gamma_p_deg", "active_surface"]
+COLUMNS = ["gamma_t_deg", "tau", "gamma_p_deg", "active_surface", "branch_surface",
+           "branch_direction", "table_row"]
 
 
 def read_columns(path):
@@ -49,6 +50,13 @@ def test_history_file_rows_are_exactly_the_increments(tmp_path):
     reference = drive(MaterialParameters(), angles)                    # the same law, in-process
     np.testing.assert_array_equal(out["tau"], reference["tau"])
     np.testing.assert_array_equal(out["active_surface"], reference["active_surface"])
+    # the state's branch: the direction follows the increments' signs (10 up, 3 down, 6 up),
+    # the row is latched when a branch starts: row 0 at first yield, then row 1 (gamma_max 25
+    # deg, in [19, 28)) at both reversals
+    steps = np.sign(np.diff(np.r_[0.0, angles]))
+    np.testing.assert_array_equal(out["branch_direction"], steps)
+    np.testing.assert_array_equal(out["table_row"], [0] * 10 + [1] * 3 + [1] * 6)
+    assert np.all(out["branch_surface"] <= 2) and out["branch_surface"][-1] == 0
     single = read_columns(tmp_path / "out" / "picture_frame_one_surface.csv")
     np.testing.assert_array_equal(single["tau"], drive(MaterialParameters().with_surfaces(0), angles)["tau"])
     png = (tmp_path / "out" / "picture_frame.png").read_bytes()

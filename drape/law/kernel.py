@@ -143,7 +143,8 @@ def phi(x, k, sigma, C12, two_mu_ksh, c, dc, R, dR):
 
 
 @jit
-def settle_modes(x, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A, two_mu_ksh, c, dc, R, dR):
+def settle_modes(x, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A, two_mu_ksh,
+                 c, dc, R, dR):
     """At gp = x, with every anchor at the surfaces' positions there, decide each surface's
     mode from the outside in: a free surface touching a bound that pushes it is carried (the
     active surface touching its parent's leading edge hands over instead, rule 6), a carried
