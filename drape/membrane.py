@@ -274,6 +274,12 @@ class MembraneProblem:
         centres = np.array([c.x.array[q] for c in self.centres]).reshape(self.law.n, q.size)
         return LawState(self.gamma_p.x.array[q].copy(), centres, self.gamma_max.x.array[q].copy())
 
+    def law_state_functions(self) -> dict:
+        """The law's committed state, {name: quadrature-space fem.Function}: what a checkpoint
+        saves and restores (drape.checkpoint)."""
+        return {"gamma_p": self.gamma_p, "gamma_max_deg": self.gamma_max,
+                **{centre.name: centre for centre in self.centres}}
+
     def evaluate(self) -> None:
         """Run the law at every local quadrature point for the current u, from the committed
         state; write tau and its tangent; evaluate the point contributions."""

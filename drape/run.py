@@ -205,7 +205,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     rows, frame_rows = [], []
     ledger = {"external": 0.0, "regularisation": 0.0, "f": None, "g": None}
     checkpoints = Checkpoints(folder, problem, job, config.output.checkpoint_every, rows,
-                              frame_rows, ledger)
+                              frame_rows, ledger, motion.prescribed_dofs)
     start = checkpoints.load() if resume else None   # (step, t, dt) to continue from
     if start is not None:
         rewind_outputs(folder, rows, start[1], comm)
