@@ -277,3 +277,61 @@ def test_a_failed_hdf5_write_keeps_the_last_step(comm, small_disk, monkeypatch):
                 assert abs(ra[key] - value) <= 1e-10 * max(1.0, abs(value)), key
     if comm.rank == 0:
         check_same_run(folder, small_disk.path / "reference")
+
+
+def test_resume_onto_another_partition(comm, shared_tmp, monkeypatch):
+    """The checkpoint is keyed by gmsh's node and cell numbers: a resume whose mesh is
+    partitioned otherwise (here every cell sent to the other rank) restores every node and
+    quadrature point and ends as the uninterrupted run, to 1e-10 (run-to-run noise on 2 ranks
+    is ~5e-12). Meaningful under mpirun -n 2 (serially the partition is the same)."""
+    import dolfinx.cpp as cpp
+    import dolfinx.io.gmshio as gmshio
+
+    from drape import checkpoint
+    from drape.errors import Interrupted
+    from drape.job import load_job
+    from drape.run import run_job
+
+    overrides = [a for a in HEMISPHERE[1:] if a not in ("--set", "--quiet")]
+    job = load_job(CONFIGS / "hemisphere.toml", overrides=[*overrides, "output.xdmf=false",
+                                                          "output.checkpoint_every=2"])
+    owned = []
+    layout = checkpoint.Layout.__init__
+
+    def record(self, problem):
+        layout(self, problem)
+        owned.append(set(self.cell_key[: self.n_cells].tolist()))
+    monkeypatch.setattr(checkpoint.Layout, "__init__", record)
+
+    step_done = checkpoint.Checkpoints.step_done
+
+    def stop_after_step_2(self, step):      # SIGTERM on rank 0 once step 2 is checkpointed
+        step_done(self, step)
+        if step.number == 2 and comm.rank == 0:
+            os.kill(os.getpid(), signal.SIGTERM)
+    monkeypatch.setattr(checkpoint.Checkpoints, "step_done", stop_after_step_2)
+    with pytest.raises(Interrupted):
+        run_job(job, comm, output=shared_tmp / "stopped")
+    monkeypatch.setattr(checkpoint.Checkpoints, "step_done", step_done)
+
+    default = cpp.mesh.create_cell_partitioner()
+
+    def swapped(comm_, parts, tdim, cells, ghost_mode):
+        destinations = default(comm_, parts, tdim, cells, ghost_mode)
+        return cpp.graph.AdjacencyList_int32(
+            (parts - 1 - destinations.array).astype(np.int32), destinations.offsets)
+    create_mesh = gmshio.create_mesh
+    monkeypatch.setattr(gmshio, "create_mesh", lambda *args: create_mesh(
+        *args, partitioner=swapped))
+    resumed = run_job(job, comm, output=shared_tmp / "stopped", resume=True)
+    monkeypatch.setattr(gmshio, "create_mesh", create_mesh)
+    if comm.size > 1:
+        assert owned[1] != owned[0]          # another partition indeed
+    reference = run_job(job, comm, output=shared_tmp / "reference")
+    assert owned[2] == owned[0]              # and the same one again without the swap
+    assert resumed.rows[2]["step"] == 2 and len(resumed.rows) == len(reference.rows) >= 5
+    for ra, rb in zip(resumed.rows, reference.rows):
+        for key, value in rb.items():
+            if key not in TIMES:
+                assert abs(ra[key] - value) <= 1e-10 * max(1.0, abs(value)), (rb["step"], key)
+    assert reference.rows[-1]["punch_force"] > 1.0
