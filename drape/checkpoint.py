@@ -144,11 +144,11 @@ class Checkpoints:
             h5 = xdmf.with_suffix(".h5")
             # the copies first: a failure (a full disk) after them leaves copies of a later
             # step than the checkpoint's, which hold all its data; never the other way round
-            if xdmf.is_file():
-                _replace_text(self.folder / XDMF_COPY, xdmf.read_text())
-            if h5.is_file():
-                _replace_copy(h5, self.folder / H5_COPY)
             try:
+                if xdmf.is_file():
+                    _replace_text(self.folder / XDMF_COPY, xdmf.read_text())
+                if h5.is_file():
+                    _replace_copy(h5, self.folder / H5_COPY)
                 _replace_atomically(self.path, lambda stream: _savez(stream, arrays))
             except OSError:
                 if not self.path.is_file():     # copies of no checkpoint: space wasted

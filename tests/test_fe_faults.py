@@ -70,8 +70,7 @@ def check_same_run(resumed: Path, reference: Path):
                 if key in TIMES:
                     continue
                 x, y = float(ra[key]), float(rb[key])
-                assert abs(x - y) <= 1e-10 * max(1.0, abs(y)), (name, rb["step" if "step" in rb
-                                                                          else "stroke_mm"], key, x, y)
+                assert abs(x - y) <= 1e-10 * max(1.0, abs(y)), (name, key, x, y)
     rows = read_steps(reference)
     assert float(rows[-1]["punch_force"]) > 1.0      # the punch pushed: a real comparison
     assert float(rows[-1]["max_shear_angle_deg"]) > 0.05
@@ -222,7 +221,7 @@ def test_a_full_disk_stops_with_one_line_and_resumes(small_disk, uninterrupted):
     assert failed.returncode == 1, failed.stderr
     line = one_line(failed.stderr)
     print("\n" + line)
-    assert line.startswith(f"drape run: run failed: could not write step ")
+    assert line.startswith("drape run: run failed: could not write step ")
     assert f"in {folder}: No space left on device (" in line
     assert " free; a step writes about " in line and "a checkpoint about" in line
     assert "drape run: warning" not in line
