@@ -62,7 +62,6 @@ def estimate(problem, config, forming: bool) -> dict[str, float]:
     """Bytes a run writes: per written step (fields and a steps.csv row), per checkpoint
     (without its copy of fields.h5), and the whole run's need (its least number of steps,
     1 / steps.maximum, with fields.h5 twice: the checkpoints keep a copy of it)."""
-    comm = problem.comm
     nodes = problem.V.dofmap.index_map.size_global
     cells = problem.mesh.topology.index_map(2).size_global
     points = cells * problem.nq
@@ -79,7 +78,6 @@ def estimate(problem, config, forming: bool) -> dict[str, float]:
     total = steps * per_step + snapshot + 8 * 2 * cells * problem.nq + 500_000
     if config.output.checkpoint_every:
         total += steps * fields / config.output.xdmf_every + checkpoint
-    del comm
     return {"step": per_step, "checkpoint": checkpoint, "total": total, "steps": steps}
 
 

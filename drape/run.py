@@ -389,18 +389,26 @@ def write_failed(failure, writer, checkpoints, rows, folder):
     from drape.errors import WriteFailed
     if not failure.fields_intact:
         writer.rewind_fields()
-    note = ""
+    room = None
     if not getattr(failure, "committed", False):
         try:
             checkpoints.save_last(check_space=True)
-        except WriteFailed as second:
-            note = f" (no newer checkpoint: {second})"
+        except WriteFailed:
+            from drape.disk import size
+            room = size(checkpoints.disk.checkpoint_bytes())
     kept = (f"; results up to step {rows[-1]['step']} (t = {rows[-1]['t']:.6g}) are kept in "
             f"{folder}")
     saved = checkpoints.saved_step
-    kept += (f", with the checkpoint of step {saved}{note}" if saved is not None else
-             ", without a checkpoint (output.checkpoint_every = 0 or none written yet): "
-             "--overwrite starts over")
+    if saved is not None:
+        kept += f", with the checkpoint of step {saved}"
+        if room is not None:
+            kept += f" (no room for a newer one: about {room})"
+    elif room is not None:
+        kept += (f", without a checkpoint (no room for one either: about {room}): --overwrite "
+                 "starts over once there is space")
+    else:
+        kept += (", without a checkpoint (output.checkpoint_every = 0 or none written yet): "
+                 "--overwrite starts over")
     error = WriteFailed(f"{failure}{kept}", fields_intact=failure.fields_intact)
     error.resumable = saved is not None
     return error
