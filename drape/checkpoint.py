@@ -1,16 +1,21 @@
 """Checkpoints of a run and resuming from one (``drape run CONFIG --resume``).
 
 ``checkpoint.npz`` in the results folder holds the last checkpointed converged step: every
-quadrature state (the law's state functions, any point contribution's
-:meth:`~drape.membrane.PointContribution.state`), the committed displacement, the ledgers of
+quadrature state (the law's, :meth:`~drape.membrane.MembraneProblem.law_state_functions`, and
+any point contribution's :meth:`~drape.membrane.PointContribution.state`: arrays of one row per
+point of the rank are matched to their points, other arrays are the same on every rank), the
+committed and the previous displacement, the ledgers of
 external and regularisation work (with the prescribed forces and displacements their next
 increment starts from), the step number, load factor t, the step size the loop proposes next,
 the rows written so far, and the effective config and material it was made with.
 
-The data is per rank (ghosts included), gathered to rank 0 into one file. A resume therefore
-needs the same number of ranks and the same partition (checked, node by node): otherwise an
-:class:`~drape.errors.InputError`. The file is written to a temporary name and renamed, so a
-kill while writing leaves the previous checkpoint intact.
+The values are gathered to rank 0 into one file, each node's and cell's under a number that
+does not depend on the partition (:class:`Layout`: gmsh's node index, DOLFINx's original cell
+index); a resume finds its nodes and cells there by number and checks their coordinates (to
+1e-8 of the blank's size): another mesh is an :class:`~drape.errors.InputError`, another
+partition is not. The number of ranks must be the same (the resumed run then gets the same
+partition, drape.mesh, and continues with the same numbers). The file is written to a temporary
+name and renamed, so a kill or a full disk while writing leaves the previous checkpoint intact.
 
 Resuming rewinds the folder to the checkpoint (:func:`rewind_outputs`): ``steps.csv`` is
 rewritten from the checkpoint's rows, the XDMF time series (from its copy ``checkpoint.xdmf``,
@@ -39,7 +44,7 @@ XDMF_COPY = "checkpoint.xdmf"
 #: a copy of fields.h5 taken with each checkpoint: a hard kill while a step's fields are being
 #: written can leave the file's group index unreadable, the checkpointed steps' data with it
 H5_COPY = "checkpoint.h5"
-VERSION = 3
+VERSION = 4
 #: config keys a resume may change (they do not change the numbers)
 FREE_KEYS = ("title", "material", "output.folder", "output.checkpoint_every")
 
@@ -79,8 +84,11 @@ class Checkpoints:
     run_job's own (mutable) records: saved as they are, filled in place on resume."""
 
     def __init__(self, folder, problem, job, every: int, rows: list, frame_rows: list,
-                 ledger: dict):
+                 ledger: dict, prescribed_dofs=()):
         self.folder = Path(folder)
+        self.layout = Layout(problem)
+        #: the owned, unrolled dofs of the ledger's arrays (PrescribedMotion.prescribed_dofs)
+        self.prescribed_dofs = prescribed_dofs
         self.path = self.folder / CHECKPOINT_FILE
         self.problem = problem
         self.comm = problem.comm
@@ -89,45 +97,71 @@ class Checkpoints:
         self.rows, self.frame_rows, self.ledger = rows, frame_rows, ledger
         self.last = None          # the last accepted solver Step
         self.saved_step = None    # number of the step in the file
+        self.disk = None          # a drape.disk.Disk: the ranks agree on write errors
 
     # --- writing ----------------------------------------------------------------------------
+    def due(self, number: int) -> bool:
+        """Whether step ``number`` gets a checkpoint."""
+        return bool(self.every) and number % self.every == 0
+
     def step_done(self, step) -> None:
         """After a converged step is written: save every ``every`` steps."""
         self.last = step
-        if self.every and step.number % self.every == 0:
+        if self.due(step.number):
             self.save()
 
-    def save_last(self) -> bool:
+    def save_last(self, check_space: bool = False) -> bool:
         """At a stop (signal, failure): save the last converged step unless already saved.
-        The problem must hold the committed state. Collective. True if a checkpoint exists."""
+        The problem must hold the committed state. Collective. True if a checkpoint exists.
+        ``check_space``: not if the disk has no room for it (drape.disk.WriteFailed)."""
         if self.every and self.last is not None and self.saved_step != self.last.number:
+            if check_space and self.disk is not None:
+                self.disk.check(self.last.number, True, results=False)
             self.save()
         return self.every > 0 and self.saved_step is not None
 
     def save(self) -> None:
         """Collective: gather every rank's state to rank 0, which writes the file atomically."""
         step = self.last
-        local = self._local_state()
-        parts = self.comm.gather(local, root=0)
+        parts = self.comm.gather(self._local_state(), root=0)
         if self.comm.rank == 0:
+            p = self.problem
             meta = {"version": VERSION, "ranks": self.comm.size, "step": step.number,
                     "t": step.t, "dt": step.next_dt,
+                    "t_committed": p.t_committed, "t_previous": p.t_previous,
                     "external_work": self.ledger["external"],
                     "regularisation_work": self.ledger["regularisation"],
                     "rows": self.rows, "frame_rows": self.frame_rows,
                     "signature": self.signature}
             arrays = {"meta": np.array(json.dumps(meta, default=_json_default))}
-            for rank, part in enumerate(parts):
-                arrays.update({f"rank{rank}.{name}": value for name, value in part.items()})
+            arrays.update(_merge(parts))
+        else:
+            arrays = None
+
+        def write():
             from drape.output import FIELDS_FILE
             xdmf = self.folder / FIELDS_FILE
             h5 = xdmf.with_suffix(".h5")
-            if xdmf.is_file():
-                _replace_text(self.folder / XDMF_COPY, xdmf.read_text())
-            if h5.is_file():
-                _replace_copy(h5, self.folder / H5_COPY)
-            _replace_atomically(self.path, lambda stream: np.savez(stream, **arrays))
-        self.comm.barrier()
+            # the copies first: a failure (a full disk) after them leaves copies of a later
+            # step than the checkpoint's, which hold all its data; never the other way round
+            try:
+                if xdmf.is_file():
+                    _replace_text(self.folder / XDMF_COPY, xdmf.read_text())
+                if h5.is_file():
+                    _replace_copy(h5, self.folder / H5_COPY)
+                _replace_atomically(self.path, lambda stream: _savez(stream, arrays))
+            except OSError:
+                if not self.path.is_file():     # copies of no checkpoint: space wasted
+                    (self.folder / XDMF_COPY).unlink(missing_ok=True)
+                    (self.folder / H5_COPY).unlink(missing_ok=True)
+                raise
+
+        if self.disk is not None:
+            self.disk.write(f"the checkpoint of step {step.number} ({CHECKPOINT_FILE})", write)
+        else:
+            if self.comm.rank == 0:
+                write()
+            self.comm.barrier()
         self.saved_step = step.number
 
     def finished(self) -> None:
@@ -137,26 +171,44 @@ class Checkpoints:
             (self.folder / H5_COPY).unlink(missing_ok=True)
         self.comm.barrier()
 
-    def _local_state(self) -> dict[str, np.ndarray]:
-        p = self.problem
-        state = {"node_xyz": p.V.tabulate_dof_coordinates(),
-                 "u": p.u_committed.x.array.copy(),
-                 "u_previous": p.u_previous.x.array.copy(),
-                 "t_steps": np.array([p.t_committed, np.nan if p.t_previous is None
-                                      else p.t_previous]),
-                 "ledger_f": _array(self.ledger["f"]), "ledger_g": _array(self.ledger["g"])}
+    def _local_state(self) -> dict:
+        """{family: (keys, {name: rows})} of this rank's owned entries, keyed by global
+        numbers that do not depend on the partition (:class:`Layout`); "global": values
+        that are the same on every rank."""
+        p, layout = self.problem, self.layout
+        owned = layout.n_owned_nodes
+        nodes = {"xyz": p.V.tabulate_dof_coordinates()[:owned]}
+        for name, function in (("u", p.u_committed), ("u_previous", p.u_previous)):
+            nodes[name] = function.x.array.reshape(-1, 3)[:owned]
+        n = layout.n_cells
+        cells = {"points": p.point_coordinates.reshape(n, -1)}
         for name, function in p.law_state_functions().items():
-            state[f"law.{name}"] = function.x.array.copy()
+            cells[f"law.{name}"] = layout.cell_rows(function)
+        global_values = {}
         for i, contribution in enumerate(p.contributions):
+            points = len(contribution.reference_points)
             for key, value in contribution.state().items():
-                state[f"contribution{i}.{key}"] = np.asarray(value)
-        return state
+                value = np.asarray(value)
+                if value.ndim and value.shape[0] == points:   # one row per point
+                    cells[f"contribution{i}.{key}"] = value.reshape(n, -1)
+                    global_values[f"shape.contribution{i}.{key}"] = np.array(value.shape[1:])
+                else:
+                    global_values[f"contribution{i}.{key}"] = value
+        dofs = np.asarray(self.prescribed_dofs, dtype=np.int64)
+        prescribed = {"f": _array(self.ledger["f"]), "g": _array(self.ledger["g"])}
+        if self.ledger["f"] is None:        # before the first step: no ledger yet
+            prescribed = {}
+            dofs = dofs[:0]
+        return {"nodes": (layout.node_key[:owned], nodes),
+                "cells": (layout.cell_key[:n], cells),
+                "prescribed": (layout.node_key[dofs // 3] * 3 + dofs % 3, prescribed),
+                "global": global_values}
 
     # --- reading ----------------------------------------------------------------------------
     def load(self):
         """Collective: read the checkpoint into the problem and the records; returns the
         step, t and next step size to continue from. InputError (on every rank) if there is no
-        usable checkpoint or the config, material, ranks or partition differ."""
+        usable checkpoint, the config, material or ranks differ, or the mesh does."""
         error, meta = None, None
         if self.comm.rank == 0:
             try:
@@ -168,35 +220,64 @@ class Checkpoints:
             raise error
         meta = self.comm.bcast(meta, root=0)
         with np.load(self.path) as data:
-            prefix = f"rank{self.comm.rank}."
-            local = {k[len(prefix):]: data[k] for k in data.files if k.startswith(prefix)}
-        p = self.problem
-        same = np.array_equal(local["node_xyz"], p.V.tabulate_dof_coordinates())
-        if not self.comm.allreduce(same, op=_mpi_land()):
-            raise InputError("the checkpoint was made with another partition of the mesh",
-                             source=str(self.path), expected="the same mesh and ranks as the "
-                             "interrupted run; or --overwrite to start over")
-        p.u.x.array[:] = local["u"]
-        p.u_committed.x.array[:] = local["u"]
-        p.u_previous.x.array[:] = local["u_previous"]
-        p.t_committed = float(local["t_steps"][0])
-        p.t_previous = None if np.isnan(local["t_steps"][1]) else float(local["t_steps"][1])
+            saved = {k: data[k] for k in data.files if k != "meta"}
+        p, layout = self.problem, self.layout
+        nodes, node_mismatch = _pick(saved, "nodes", layout.node_key)   # ghosts too
+        cells, cell_mismatch = _pick(saved, "cells", layout.cell_key[:layout.n_cells])
+        problems = []
+        if nodes is not None:
+            X = p.V.tabulate_dof_coordinates()
+            node_mismatch += int((np.abs(nodes["xyz"] - X).max(axis=1) > _tolerance(X)).sum())
+        if cells is not None:
+            x = p.point_coordinates.reshape(layout.n_cells, -1)
+            cell_mismatch += int((np.abs(cells["points"] - x).max(axis=1)
+                                  > _tolerance(x)).sum()) if x.size else 0
+        node_mismatch = self.comm.allreduce(node_mismatch)
+        cell_mismatch = self.comm.allreduce(cell_mismatch)
+        if node_mismatch:
+            problems.append(f"{node_mismatch} node(s) of this mesh are not where the "
+                            "checkpoint's are")
+        if cell_mismatch:
+            problems.append(f"{cell_mismatch} cell(s) of this mesh are not the checkpoint's")
+        if problems:
+            raise InputError("the checkpoint was made with another mesh: " + "; ".join(problems),
+                             source=str(self.path), expected="the mesh of the interrupted run "
+                             "(the same blank and mesh keys); or --overwrite to start over")
+        p.u.x.array[:] = nodes["u"].ravel()
+        p.u_committed.x.array[:] = nodes["u"].ravel()
+        p.u_previous.x.array[:] = nodes["u_previous"].ravel()
+        p.t_committed = float(meta["t_committed"])
+        p.t_previous = None if meta["t_previous"] is None else float(meta["t_previous"])
         for name, function in p.law_state_functions().items():
-            if f"law.{name}" not in local:
-                raise InputError(f"the checkpoint has no law state '{name}' (made by an older "
-                                 "drape, before version 2 of the law)", source=str(self.path),
-                                 expected="a checkpoint of this version; or --overwrite to "
-                                 "start over")
-            function.x.array[:] = local[f"law.{name}"]
+            if f"law.{name}" not in cells:
+                raise InputError(f"the checkpoint has no law state '{name}' (made before "
+                                 "version 2 of the law)", source=str(self.path),
+                                 expected="a checkpoint of this drape; or --overwrite to start "
+                                 "over")
+            layout.set_cell_rows(function, cells[f"law.{name}"])
         for i, contribution in enumerate(p.contributions):
             prefix = f"contribution{i}."
-            contribution.load_state({k[len(prefix):]: v for k, v in local.items()
-                                     if k.startswith(prefix)})
+            state = {k[len(prefix):]: v for k, v in cells.items() if k.startswith(prefix)}
+            points = len(contribution.reference_points)
+            state = {k: v.reshape(points, *saved[f"global.shape.{prefix}{k}"])
+                     for k, v in state.items()}
+            state.update({k[len(f"global.{prefix}"):]: v for k, v in saved.items()
+                          if k.startswith(f"global.{prefix}")})
+            contribution.load_state(state)
+        dofs = np.asarray(self.prescribed_dofs, dtype=np.int64)
+        ledger_f = ledger_g = None
+        if "prescribed.f" in saved:
+            prescribed, missing = _pick(saved, "prescribed",
+                                        layout.node_key[dofs // 3] * 3 + dofs % 3)
+            if self.comm.allreduce(missing):
+                raise InputError("the checkpoint's prescribed boundary differs from this run's",
+                                 source=str(self.path), expected="the mesh and boundaries of "
+                                 "the interrupted run; or --overwrite to start over")
+            ledger_f, ledger_g = prescribed["f"].ravel(), prescribed["g"].ravel()
         p._evaluated_at = None
         p.evaluate()
         self.ledger.update(external=meta["external_work"],
-                           regularisation=meta["regularisation_work"],
-                           f=local["ledger_f"], g=local["ledger_g"])
+                           regularisation=meta["regularisation_work"], f=ledger_f, g=ledger_g)
         self.rows[:] = meta["rows"]
         self.frame_rows[:] = meta["frame_rows"]
         self.saved_step = meta["step"]
@@ -228,6 +309,77 @@ class Checkpoints:
                              expected="the same config, --set values and material as the "
                                       "interrupted run; or --overwrite to start over")
         return meta
+
+
+
+# --- partition-independent keys -------------------------------------------------------------
+
+class Layout:
+    """Global numbers of this rank's nodes and cells that do not depend on the partition: a
+    node's index in gmsh's mesh (the geometry's input index) and a cell's (DOLFINx's original
+    cell index). A checkpoint stores every value under them, so that a resume restores each
+    node and quadrature point from the checkpoint's entry of the same number whatever rank
+    holds it, and compares coordinates (to 1e-8 of the blank's size) to tell another mesh."""
+
+    def __init__(self, problem):
+        msh, V = problem.mesh, problem.V
+        index_map = V.dofmap.index_map
+        self.n_owned_nodes = index_map.size_local
+        inputs = np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
+        self.node_key = np.empty(index_map.size_local + index_map.num_ghosts, dtype=np.int64)
+        # P1 dofs and geometry nodes share the cells' vertex order
+        self.node_key[V.dofmap.list.array] = inputs[msh.geometry.dofmap.array]
+        self.cell_key = np.asarray(msh.topology.original_cell_index, dtype=np.int64)
+        self.n_cells = problem.n_cells
+
+    def _cell_index(self, function) -> np.ndarray:
+        """Indices into ``function.x.array`` of each owned cell's values, (cells, values)."""
+        dofmap = function.function_space.dofmap
+        bs = dofmap.index_map_bs
+        dofs = dofmap.list.array.reshape(len(self.cell_key), -1)[: self.n_cells]
+        return (dofs[:, :, None] * bs + np.arange(bs)).reshape(self.n_cells, -1)
+
+    def cell_rows(self, function) -> np.ndarray:
+        return function.x.array[self._cell_index(function)]
+
+    def set_cell_rows(self, function, rows) -> None:
+        """Owned cells only: the law's ghost entries are never read or written (membrane.py)."""
+        function.x.array[self._cell_index(function)] = rows
+
+
+def _merge(parts) -> dict[str, np.ndarray]:
+    """Rank 0: every rank's :meth:`Checkpoints._local_state` as one array per name and family,
+    rows sorted by key ("<family>.key", "<family>.<name>"); "global.<name>" from rank 0."""
+    arrays = {f"global.{k}": v for k, v in parts[0]["global"].items()}
+    for family in ("nodes", "cells", "prescribed"):
+        keys = np.concatenate([part[family][0] for part in parts])
+        order = np.argsort(keys, kind="stable")
+        arrays[f"{family}.key"] = keys[order]
+        for name in parts[0][family][1]:
+            rows = [np.asarray(part[family][1][name]) for part in parts]
+            width = max([r.size // len(r) for r in rows if len(r)] or [1])
+            arrays[f"{family}.{name}"] = np.concatenate([r.reshape(len(r), width)
+                                                         for r in rows])[order]
+    return arrays
+
+
+def _pick(saved, family, keys):
+    """{name: the rows of ``keys``} from a checkpoint's family, and how many keys it lacks."""
+    stored = saved.get(f"{family}.key")
+    if stored is None:
+        return None, len(keys)
+    index = np.searchsorted(stored, keys)
+    index = np.minimum(index, max(len(stored) - 1, 0))
+    found = (stored[index] == keys) if len(stored) else np.zeros(len(keys), bool)
+    index = np.where(found, index, 0)
+    prefix = f"{family}."
+    rows = {k[len(prefix):]: (v[index] if len(v) else v[:0]) for k, v in saved.items()
+            if k.startswith(prefix) and k != f"{family}.key"}
+    return rows, int((~found).sum())
+
+
+def _tolerance(x) -> float:
+    return 1e-8 * max(1.0, float(np.abs(x).max())) if x.size else 0.0
 
 
 # --- the results folder back to the checkpoint ---------------------------------------------
@@ -291,11 +443,15 @@ def _replace_atomically(path: Path, write) -> None:
     """``write(stream)`` into a temporary file beside ``path`` (binary), flush it to disk, then
     rename it onto ``path``: a kill at any moment leaves either the old file or the new one."""
     temporary = path.with_name(f".{path.name}.tmp")
-    with open(temporary, "wb") as stream:
-        write(stream)
-        stream.flush()
-        os.fsync(stream.fileno())
-    os.replace(temporary, path)
+    try:
+        with open(temporary, "wb") as stream:
+            write(stream)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, path)
+    except BaseException:       # a full disk, say: no partial file left behind
+        temporary.unlink(missing_ok=True)
+        raise
 
 
 def _replace_text(path: Path, text: str) -> None:
@@ -312,6 +468,14 @@ def _replace_copy(source: Path, target: Path) -> None:
     _replace_atomically(target, copy)
 
 
+def _savez(stream, arrays) -> None:
+    """np.savez into memory first, then to ``stream``: a failed write leaves no half-closed
+    zip file behind (whose clean-up prints a traceback)."""
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    stream.write(buffer.getbuffer())
+
+
 def _array(value) -> np.ndarray:
     return np.zeros(0) if value is None else np.asarray(value)
 
@@ -323,7 +487,3 @@ def _json_default(value):
         return value.tolist()
     raise TypeError(f"cannot store {type(value).__name__} in a checkpoint")
 
-
-def _mpi_land():
-    from mpi4py import MPI
-    return MPI.LAND

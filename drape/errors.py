@@ -6,6 +6,8 @@
   even at the smallest step). Results up to the last converged step are kept. Exit code 1.
 * :class:`Interrupted` -- a RunFailed: the run was stopped by SIGTERM or SIGINT; results and
   the checkpoint of the last converged step are written. Exit code 1.
+* :class:`WriteFailed` -- a RunFailed: results could not be written (a full disk, say); the
+  files are as after the last complete step, the last good checkpoint is kept. Exit code 1.
 """
 
 from __future__ import annotations
@@ -71,3 +73,19 @@ class RunFailed(Exception):
 
 class Interrupted(RunFailed):
     """A run stopped by a signal (SIGTERM, SIGINT) after its last converged step was saved."""
+
+
+class WriteFailed(RunFailed):
+    """Results could not be written (no space, no permission, a quota): the run stopped; the
+    files are as after the last complete step (``fields_intact`` False: fields.xdmf/h5 may be
+    torn; the resume takes them from the checkpoint's copies) and the last good checkpoint is
+    kept."""
+
+    def __init__(self, message: str, *, fields_intact: bool = True):
+        super().__init__(message)
+        self.fields_intact = fields_intact
+        self.committed = False      # the failed step was committed in memory (no checkpoint)
+        self.resumable = False      # a checkpoint exists: the message gives the resume command
+
+    def __reduce__(self):
+        return (type(self), (str(self),), dict(self.__dict__))

@@ -9,6 +9,7 @@ to tags. An error while meshing on rank 0 is broadcast so that every rank raises
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numpy as np
 
@@ -57,6 +58,11 @@ def create_blank_mesh(comm, blank, mesh_config, centred: bool = False) -> BlankM
     error = comm.bcast(error, root=0)
     if error is not None:
         raise error
+    # PT-Scotch 7 (DOLFINx's partitioner here) runs one thread per core by default, and the
+    # threads make the partition differ from run to run (2 ranks, the hemisphere's 2601 cells:
+    # 4 different partitions in 5 runs; 5 identical ones with a single thread). A run and its
+    # resume must get the same partition for the same numbers (drape.checkpoint).
+    os.environ.setdefault("SCOTCH_PTHREAD_NUMBER", "1")
     try:
         msh, _, facet_tags = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2)
     finally:

@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 
 import numpy as np
@@ -58,36 +59,60 @@ class ResultsWriter:
         self._dg0 = W0.dofmap.list.array[:n]
         self._dg3 = W3.dofmap.list.array[:n]
         if self.xdmf and not append:
-            with io.XDMFFile(self.comm, str(self.folder / FIELDS_FILE), "w") as stream:
+            stream = io.XDMFFile(self.comm, str(self.folder / FIELDS_FILE), "w")
+            try:
                 stream.write_mesh(msh)
+                stream.close()
+            except RuntimeError:
+                _abandon(stream)
+                raise
+        self.remember_fields()
 
     # --- per step -----------------------------------------------------------------------------------
     def write_step(self, row: dict, t: float, *, last: bool = False) -> None:
-        """Append the CSV row; write the fields if due (every ``xdmf_every`` steps, and the last)."""
-        self._write_row(row)
-        due = last or row["step"] % self.xdmf_every == 0
-        if self.xdmf and due:
-            self.write_fields(t)
-        if self.snapshot == "every" or (self.snapshot == "final" and last):
-            self.write_snapshot(t)
+        """Append the CSV row; write the fields if due (every ``xdmf_every`` steps, and the last).
+        If the fields fail (a full disk), the row is cut off again."""
+        end = self._write_row(row)
+        try:
+            due = last or row["step"] % self.xdmf_every == 0
+            if self.xdmf and due:
+                self.write_fields(t)
+            if self.snapshot == "every" or (self.snapshot == "final" and last):
+                self.write_snapshot(t)
+        except BaseException:
+            if end is not None:
+                self._stream.truncate(end)
+            raise
 
-    def _write_row(self, row: dict) -> None:
+    def _write_row(self, row: dict) -> int | None:
+        """Append the row to steps.csv (rank 0), unbuffered; a failed write (a full disk) is
+        cut off again, so that the file ends with the last complete row. Returns the file's
+        length before the row (rank 0)."""
         if self.comm.rank != 0:
-            return
+            return None
+        path = self.folder / STEPS_FILE
+        text = io.StringIO(newline="")
+        writer = csv.writer(text)
         if self._csv is None:
-            path = self.folder / STEPS_FILE
             if self.append and path.is_file():
                 with path.open(newline="") as stream:
                     self._columns = next(csv.reader(stream))
-                self._stream = path.open("a", newline="")
-                self._csv = csv.writer(self._stream)
+                self._stream = path.open("ab", buffering=0)
             else:
                 self._columns = list(row)
-                self._stream = path.open("w", newline="")
-                self._csv = csv.writer(self._stream)
-                self._csv.writerow(self._columns)
-        self._csv.writerow([_text(row.get(name, "")) for name in self._columns])
-        self._stream.flush()
+                self._stream = path.open("wb", buffering=0)
+                writer.writerow(self._columns)
+            self._csv = writer
+        writer.writerow([_text(row.get(name, "")) for name in self._columns])
+        data = text.getvalue().encode()
+        end = self._stream.seek(0, io.SEEK_END)
+        try:
+            while data:
+                data = data[self._stream.write(data):]
+        except OSError:
+            self._stream.truncate(end)
+            raise
+        return end
 
     def update_cell_fields(self) -> None:
         """Cell averages of the committed response at the law's points."""
@@ -114,16 +139,46 @@ class ResultsWriter:
     def write_fields(self, t: float) -> None:
         from dolfinx import io
         self.update_cell_fields()
-        with io.XDMFFile(self.comm, str(self.folder / FIELDS_FILE), "a") as stream:
+        stream = io.XDMFFile(self.comm, str(self.folder / FIELDS_FILE), "a")
+        try:
             stream.write_function(self.problem.u, t)
             for function in self.cell_fields.values():
                 stream.write_function(function, t)
+            stream.close()
+        except RuntimeError:
+            _abandon(stream)
+            raise
+        self.remember_fields()
+
+    def remember_fields(self) -> None:
+        """Rank 0 keeps the text of fields.xdmf as after the last complete write (DOLFINx
+        rewrites it whole with every step: a full disk can leave it cut short)."""
+        path = self.folder / FIELDS_FILE
+        if self.xdmf and self.comm.rank == 0 and path.is_file():
+            self._xdmf_text = path.read_text()
+
+    def rewind_fields(self) -> None:
+        """Rank 0, after a failed write: fields.xdmf back to its last complete text (in place
+        when the disk has no room for a new file)."""
+        text = getattr(self, "_xdmf_text", None)
+        if self.comm.rank != 0 or text is None:
+            return
+        from drape.checkpoint import _replace_text
+        path = self.folder / FIELDS_FILE
+        try:
+            _replace_text(path, text)
+        except OSError:
+            with path.open("r+b") as stream:
+                stream.write(text.encode())
+                stream.truncate()
 
     def write_snapshot(self, t: float) -> None:
         """result.npz: nodal and point fields gathered on rank 0, sorted by coordinates."""
         data = gather_sorted(self.problem)
-        if self.comm.rank == 0:
-            np.savez(self.folder / SNAPSHOT_FILE, t=t, **data)
+        if self.comm.rank == 0:     # to a temporary file, renamed: never a cut-off result
+            from drape.checkpoint import _replace_atomically, _savez
+            _replace_atomically(self.folder / SNAPSHOT_FILE,
+                                lambda stream: _savez(stream, dict(t=t, **data)))
 
     def close(self) -> None:
         if self._csv is not None:
@@ -159,6 +214,15 @@ def _coordinate_order(xy: np.ndarray) -> np.ndarray:
     scale = max(1.0, float(np.abs(xy).max())) if xy.size else 1.0
     key = np.round(xy / scale, 9)
     return np.lexsort((key[:, 1], key[:, 0]))
+
+
+def _abandon(stream) -> None:
+    """Never destroy a DOLFINx XDMFFile whose write failed (a full disk): DOLFINx 0.5's
+    destructor closes the HDF5 file again, and when that fails it throws from the destructor,
+    which aborts the process (SIGABRT, a C++ backtrace). The file stays open until the process
+    ends."""
+    import ctypes
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(stream))
 
 
 def _text(value) -> str:

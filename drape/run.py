@@ -64,7 +64,7 @@ def add_arguments(parser) -> None:
 def main(args) -> int:
     from mpi4py import MPI
 
-    from drape.errors import Interrupted
+    from drape.errors import Interrupted, WriteFailed
     from drape.job import load_job
     from drape.solver import parse_option
 
@@ -78,6 +78,11 @@ def main(args) -> int:
                           on_step=progress.on_step, resume=args.resume, overwrite=args.overwrite)
     except Interrupted as stopped:
         raise Interrupted(f"{stopped}; resume with: {resume_command(args, comm.size)}") from None
+    except WriteFailed as failed:
+        if not failed.resumable:
+            raise
+        raise WriteFailed(f"{failed}; resume (once there is space) with: "
+                          f"{resume_command(args, comm.size)}") from None
     finally:
         progress.close()
     if comm.rank == 0 and not args.quiet:
@@ -154,14 +159,15 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     from drape import bias_extension, frame_force
     from drape.checkpoint import Checkpoints, rewind_outputs
     from drape.constraints import PrescribedMotion
-    from drape.errors import InputError, Interrupted, RunFailed
+    from drape.disk import Disk, estimate
+    from drape.errors import InputError, Interrupted, RunFailed, WriteFailed
     from drape.folder import claim
     from drape.interrupt import StopRequest
     from drape.law.nested_surface import NestedSurfaceLaw
     from drape.loading import Loading
     from drape.membrane import MembraneProblem
     from drape.mesh import create_blank_mesh
-    from drape.output import ResultsWriter
+    from drape.output import FIELDS_FILE, STEPS_FILE, ResultsWriter
     from drape.solver import NewtonSolver, run_load_steps
 
     _quiet_jit_logging()
@@ -205,16 +211,19 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     rows, frame_rows = [], []
     ledger = {"external": 0.0, "regularisation": 0.0, "f": None, "g": None}
     checkpoints = Checkpoints(folder, problem, job, config.output.checkpoint_every, rows,
-                              frame_rows, ledger)
+                              frame_rows, ledger, motion.prescribed_dofs)
     start = checkpoints.load() if resume else None   # (step, t, dt) to continue from
     if start is not None:
         rewind_outputs(folder, rows, start[1], comm)
         say(f"drape run: resuming from the checkpoint of step {start[0]} (t = {start[1]:.6g})")
-    writer = ResultsWriter(folder, problem, xdmf=config.output.xdmf,
-                           xdmf_every=config.output.xdmf_every, snapshot=config.output.snapshot,
-                           append=start is not None,
-                           extra_cell_fields={"contact_pressure": forming.contact_pressure}
-                           if forming else None)
+    disk = Disk(folder, comm, estimate(problem, config, forming is not None))
+    disk.warn_at_start(say)
+    checkpoints.disk = disk
+    writer = disk.write(FIELDS_FILE, lambda: ResultsWriter(
+        folder, problem, xdmf=config.output.xdmf, xdmf_every=config.output.xdmf_every,
+        snapshot=config.output.snapshot, append=start is not None,
+        extra_cell_fields={"contact_pressure": forming.contact_pressure} if forming else None),
+        root_only=False, fields=True)
     frame = config.picture_frame
     side = config.blank.length
     yarn_modulus = (job.params.mu * job.params.K1, job.params.mu * job.params.K2)
@@ -285,6 +294,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
     def attempt(t):
         stop_if_requested()
+        # a step whose files would not fit on the disk: the run stops before solving it
+        number = rows[-1]["step"] + 1
+        disk.check(number, checkpoints.due(number))
         motion.set_load(t)
         if forming is not None:
             forming.set_load(t)
@@ -301,11 +313,26 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         problem.commit(step.t)
         row = record(step.number, step.t, step.iterations, step.cutbacks, step.dt,
                      step.residual, step.seconds)
-        writer.write_step(row, step.t, last=step.t >= 1.0 - 1e-12)
-        checkpoints.step_done(step)
+        try:
+            disk.write(f"step {step.number}'s results ({STEPS_FILE}, {FIELDS_FILE})",
+                       lambda: writer.write_step(row, step.t, last=step.t >= 1.0 - 1e-12),
+                       root_only=False, fields=True)
+        except WriteFailed as failure:      # the files end with the step before
+            failure.committed = True
+            rows.pop()
+            if frame is not None:
+                frame_rows.pop()
+            raise
+        disk.measure((STEPS_FILE, FIELDS_FILE, "fields.h5"))
+        try:
+            checkpoints.step_done(step)
+        except WriteFailed as failure:
+            failure.committed = True
+            raise
         if on_step is not None:
             on_step(row, problem)
 
+    write_failure = None
     stop.install()
     try:
         if start is None:
@@ -319,6 +346,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             forming.set_load(start[1])
         run_load_steps(config.steps, loading.breakpoints(), attempt, accept, problem.restore,
                        step0=start[0], t0=start[1], dt0=start[2], log=say)
+    except WriteFailed as failure:
+        write_failure = failure
+        raise write_failed(failure, writer, checkpoints, rows, folder) from None
     except RunFailed as failure:
         problem.restore()
         problem.evaluate()
@@ -338,17 +368,55 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         stop.uninstall()
         writer.close()
         solver.close()
-        if frame is not None and comm.rank == 0 and len(frame_rows) > 1:
-            frame_force.write(folder, side, frame_rows)
-        if config.bias_extension is not None and comm.rank == 0 and len(rows) > 1:
-            bias_extension.write(folder, rows, config.title)
-        if forming is not None and len(rows) > 1:
-            forming.finish(folder, rows, time.perf_counter() - started)
+        if write_failure is None:   # after a write failure the resumed run writes them
+            if frame is not None and len(frame_rows) > 1:
+                disk.write("frame_force.csv/.png",
+                           lambda: frame_force.write(folder, side, frame_rows))
+            if config.bias_extension is not None and len(rows) > 1:
+                disk.write("bias_extension.csv/.png",
+                           lambda: bias_extension.write(folder, rows, config.title))
+            if forming is not None and len(rows) > 1:
+                disk.write("force_stroke.csv/.png, the shear maps and summary.json",
+                           lambda: forming.finish(folder, rows, time.perf_counter() - started),
+                           root_only=False)
     checkpoints.finished()
     timings = dict(problem.timings)
     timings.update({f"count_{k}": v for k, v in problem.counts.items()})
     return RunSummary(rows[-1]["step"], rows[-1]["t"], time.perf_counter() - started, folder,
                       rows, timings)
+
+
+def write_failed(failure, writer, checkpoints, rows, folder):
+    """After a write failure (drape.disk): fields.xdmf back to its last complete step; a
+    checkpoint of that step when the failure came before the step changed anything (a step
+    that would not fit) and there is room for one (else the last good one is kept). Returns
+    the WriteFailed to raise: the failure, what is kept, and whether a resume can follow."""
+    from drape.errors import WriteFailed
+    if not failure.fields_intact:
+        writer.rewind_fields()
+    room = None
+    if not getattr(failure, "committed", False):
+        try:
+            checkpoints.save_last(check_space=True)
+        except WriteFailed:
+            from drape.disk import size
+            room = size(checkpoints.disk.checkpoint_bytes())
+    kept = (f"; results up to step {rows[-1]['step']} (t = {rows[-1]['t']:.6g}) are kept in "
+            f"{folder}")
+    saved = checkpoints.saved_step
+    if saved is not None:
+        kept += f", with the checkpoint of step {saved}"
+        if room is not None:
+            kept += f" (no room for a newer one: about {room})"
+    elif room is not None:
+        kept += (f", without a checkpoint (no room for one either: about {room}): --overwrite "
+                 "starts over once there is space")
+    else:
+        kept += (", without a checkpoint (output.checkpoint_every = 0 or none written yet): "
+                 "--overwrite starts over")
+    error = WriteFailed(f"{failure}{kept}", fields_intact=failure.fields_intact)
+    error.resumable = saved is not None
+    return error
 
 
 #: what a run writes in its folder (drape.folder.claim refuses to overwrite them silently)

@@ -556,8 +556,8 @@ def test_friction_has_memory_so_the_step_size_does_not_matter(steps):
     assert f[0, 0] == pytest.approx(-0.1 * mu * p, rel=1e-9)
 
 
-@pytest.mark.serial   # in one process a second mesh of 2 ranks may be partitioned otherwise, which
-#                       a resume refuses; test_fe_checkpoint.py resumes on 2 ranks in new processes
+# also under mpirun: a second mesh in one process may be partitioned otherwise, and the
+# checkpoint (keyed by node and cell numbers) restores onto it (docs/faults.md)
 @pytest.mark.parametrize("inertia", [[], ["process.areal_density=1", "process.punch_speed=3"]])
 def test_a_resumed_forming_run_equals_the_uninterrupted_one(tmp_path, inertia):
     """Stopped after step 4 and resumed from its checkpoint, a forming run ends where the
