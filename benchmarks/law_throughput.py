@@ -12,7 +12,9 @@ random cyclic history (not timed):
                the surface already active (a typical load step of a forming run);
 * cyclic    -- a random +-2 deg increment: reversals, hand-overs between surfaces.
 
-Columns (points per second, one core): *compiled*, the best of --repeats calls from the same
+Times are the process's CPU time (time.process_time), not the wall clock: the project's
+machines are shared, and the CPU time of a single-threaded call does not count the time other
+jobs hold the core. Columns (points per second of CPU time, one core): *compiled*, the best of --repeats calls from the same
 committed state (as in a Newton loop); *interpreted*, the same kernel with NUMBA_DISABLE_JIT=1
 in a subprocess, on a sample of --sample points (its time is linear in N); *v1 numpy*, the
 vectorised law of ``git show REV:drape/law/nested_surface.py`` (version 1 of the reading, so
@@ -70,9 +72,9 @@ def rates(law_module, params, size, repeats, seed=2026):
         ones = np.ones(size)
         best = np.inf
         for _ in range(repeats):
-            start = time.perf_counter()
+            start = time.process_time()
             response = law.update(state, ones, ones, C12)
-            best = min(best, time.perf_counter() - start)
+            best = min(best, time.process_time() - start)
         out[kind] = (size / best, float(np.mean(response.active_surface >= 0)))
     return out
 
