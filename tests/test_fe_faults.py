@@ -215,8 +215,8 @@ def check_folder_at_last_step(folder):
 @pytest.mark.serial
 def test_a_full_disk_stops_with_one_line_and_resumes(small_disk, uninterrupted):
     """drape run checks the free space before each step: the hemisphere on 2 ranks (about
-    0.1 MB of fields a step, a checkpoint of 0.45 MB plus its copy of fields.h5) into 1 MB."""
-    folder = small_disk.mount("1m") / "run"
+    0.1 MB of fields a step, a checkpoint of 0.62 MB plus its copy of fields.h5) into 1.18 MB."""
+    folder = small_disk.mount("1180k") / "run"
     failed = drape("run", *HEMISPHERE, "--output", folder, *every(2), ranks=2)
     assert failed.returncode == 1, failed.stderr
     line = one_line(failed.stderr)
@@ -248,9 +248,9 @@ def test_a_failed_hdf5_write_keeps_the_last_step(comm, small_disk, monkeypatch):
     from drape.run import run_job
 
     overrides = [a for a in HEMISPHERE[1:] if a not in ("--set", "--quiet")]
-    # 1.2 MB: after step 2 and its checkpoint (fields.h5 and its copy 0.33 MB each, the
-    # checkpoint 0.45 MB) about 80 kB are left, and step 3's fields need about 100 kB
-    folder = small_disk.mount("1200k") / "run"
+    # 1.38 MB: after step 2 and its checkpoint (fields.h5 and its copy 0.33 MB each, the
+    # checkpoint 0.62 MB) about 80 kB are left, and step 3's fields need about 100 kB
+    folder = small_disk.mount("1380k") / "run"
     job = load_job(CONFIGS / "hemisphere.toml", overrides=[*overrides,
                                                           "output.checkpoint_every=2"])
     check = Disk.check
