@@ -444,7 +444,8 @@ class Forming:
                   "position": "holder position-controlled (where its STEP file puts it; its "
                               "force is measured, process.holder_force is not applied)",
                   None: "no holder"}[self.holder_mode if "holder" in surfaces else None]
-        say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, {holder}, penalty {self.penalty:.4g} N/mm^3 (smoothed over "
+        say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, {holder}, "
+            f"penalty {self.penalty:.4g} N/mm^3 (smoothed over "
             f"{self.smoothing:.3g} mm), friction {contact.friction:g}"
             + (f", inertia {self.process.areal_density:g} kg/m^2, the punch at "
                f"{self.process.punch_speed:g} m/s after {self.process.punch_ramp:g} mm"

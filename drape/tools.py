@@ -444,10 +444,12 @@ class MeshedSurface:
 
     Candidate lists (``margin`` > 0, mm; for a solver that asks about the same points again
     and again as they move a little): :meth:`query` keeps, per point, the position p0 where it
-    last searched, its distance d0 there, and the triangles within d0 + 2 margin of p0. While a point stays within ``margin`` of p0, its closest triangle is among
+    last searched, its distance d0 there, and the triangles within d0 + 2 margin of p0.
+    While a point stays within ``margin`` of p0, its closest triangle is among
     them (a triangle left out is farther than d0 + 2 margin - margin from it, while the one
-    closest at p0 is nearer than d0 + margin), so only they are evaluated; a point that moved
-    farther is searched again. Points farther than cutoff + margin at p0 keep their closest
+    closest at p0 is nearer than d0 + margin), and of them only those within d0 + 2 delta of
+    p0 (delta the point's move since p0) can be closest: only these are evaluated, 2-5 per
+    point in a Newton iteration. A point that moved farther than margin is searched again. Points farther than cutoff + margin at p0 keep their closest
     triangle then, whose distance stays an upper bound, above cutoff. So the answers are those
     of the search without the lists. The lists are kept for one set of points (their number
     and the cutoff): another set starts them again.

@@ -118,7 +118,7 @@ def test_a_holder_force_more_than_five_percent_off_is_a_warning_with_the_step():
     assert "+5.5 %" in said[0]
 
 
-# --- candidate lists -------------------------------------------------------------------------------
+# --- candidate lists ------------------------------------------------------------------------
 
 @pytest.mark.parametrize("cutoff", [None, 3.0])
 def test_candidate_lists_give_the_exact_closest_points_as_points_move(cutoff):
@@ -149,7 +149,7 @@ def test_candidate_lists_give_the_exact_closest_points_as_points_move(cutoff):
     assert tool.searched < 0.5 * 12 * len(p)
 
 
-# --- the same job with STEP and built-in tools ------------------------------------------------------
+# --- the same job with STEP and built-in tools -------------------------------------------
 
 def run(path, folder, overrides=()):
     from mpi4py import MPI
