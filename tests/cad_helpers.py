@@ -97,3 +97,32 @@ def step_job(config: Path, folder, paths: dict[str, Path], **holder) -> Path:
     path = folder / f"{config.stem}_step.toml"
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def write_double_dome_step(folder, margin: float = 50.0) -> dict[str, Path]:
+    """punch.step, die.step, holder.step in ``folder``: the default double dome's tools built
+    by drape's gmsh/OpenCASCADE builder and written as STEP, one solid per file, with the die
+    block and the holder plate ``margin`` mm wider all round than drape's 470 x 270 mm. drape's
+    exact double-dome tools are unbounded outward (docs/tools.md): the blank's ends lie on the
+    die's outer edge, where the finite block's sharp edge (its mean normal) would push them
+    sideways; the wider plates leave the fabric on the flat faces, as the exact tools do."""
+    import dataclasses
+
+    from drape.geometry._gmsh import scratch_model
+    from drape.geometry.tools import DoubleDomeTools, _build_double_dome
+
+    base = DoubleDomeTools()
+    dims = dataclasses.replace(base, die_length=base.die_length + 2 * margin,
+                               die_width=base.die_width + 2 * margin)
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for name in ("punch", "die", "holder"):
+        with scratch_model(f"cad-{name}") as gmsh:
+            volumes = _build_double_dome(gmsh, dims)
+            gmsh.model.occ.remove([(3, tag) for other, tag in volumes.items() if other != name],
+                                  recursive=True)
+            gmsh.model.occ.synchronize()
+            paths[name] = folder / f"{name}.step"
+            gmsh.write(str(paths[name]))
+    return paths
