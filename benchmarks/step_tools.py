@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/step_tools.py [--stroke 10] [--set key=value ...]
                                               [--margin 1.0] [--only step|builtin]
+                                              [--tools hemisphere|double_dome]
 
 Writes the default hemisphere's punch, die and holder as STEP files (gmsh's OpenCASCADE
 kernel, tests/cad_helpers.py: a sphere fused with a cylinder, plates with a hole and fillets),
@@ -10,7 +11,9 @@ on those files, with the same overrides, and prints per run: wall time, the time
 tools' closest-point queries (and how many points were searched rather than answered from
 their candidate lists), steps / Newton iterations, peak shear, mid-side draw-in, punch force
 at the end, and the holder force's range over the converged steps. ``--margin 0`` turns the
-meshed tools' candidate lists off (drape.tools.MeshedSurface, docs/tools.md).
+meshed tools' candidate lists off (drape.tools.MeshedSurface, docs/tools.md). ``--tools
+double_dome``: configs/double_dome.toml, its tools written by drape's gmsh builder with the die
+and holder plates 50 mm wider all round (tests/cad_helpers.py, write_double_dome_step).
 """
 
 from __future__ import annotations
@@ -73,25 +76,28 @@ def run(config, folder, overrides, margin):
             "steps": rows[-1]["step"], "iterations": report["newton_iterations"],
             "peak shear (deg)": report["max_shear_angle_deg"],
             "draw-in mid-side (mm)": report["draw_in_mm"]["mid_right"],
+            "draw-in other mid-side (mm)": report["draw_in_mm"]["mid_top"],
             "punch force (N)": report["punch_force_at_end_N"],
             "holder force (N)": report["holder_force_measured_N"]}
 
 
 def main():
-    from cad_helpers import step_job, write_hemisphere_step
+    from cad_helpers import step_job, write_double_dome_step, write_hemisphere_step
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--stroke", type=float, default=10.0)
     parser.add_argument("--set", action="append", default=[], dest="overrides")
     parser.add_argument("--margin", type=float, default=None,
                         help="candidate-list margin of the meshed tools (mm; default: drape's)")
     parser.add_argument("--only", choices=("step", "builtin"))
+    parser.add_argument("--tools", choices=("hemisphere", "double_dome"), default="hemisphere")
     args = parser.parse_args()
     overrides = [f"process.stroke={args.stroke:g}"] + args.overrides
-    config = REPO / "configs" / "hemisphere.toml"
+    config = REPO / "configs" / f"{args.tools}.toml"
+    write = write_hemisphere_step if args.tools == "hemisphere" else write_double_dome_step
     results = {}
     with tempfile.TemporaryDirectory(prefix="drape-step-bench-") as tmp:
         tmp = Path(tmp)
-        paths = write_hemisphere_step(tmp / "cad")
+        paths = write(tmp / "cad")
         jobs = {"built-in": config, "STEP": step_job(config, tmp, paths)}
         for name, path in jobs.items():
             if args.only and args.only != ("step" if name == "STEP" else "builtin"):
@@ -102,7 +108,7 @@ def main():
                 margin = TOOL_LIST_MARGIN
             results[name] = run(path, tmp / name, overrides, margin)
             print(name, results[name], flush=True)
-    print(f"\nhemisphere, {' '.join(overrides)}, 1 rank")
+    print(f"\n{args.tools}, {' '.join(overrides)}, 1 rank")
     print("| | " + " | ".join(results) + " |")
     print("|---|" + "---:|" * len(results))
     for key in next(iter(results.values())):
