@@ -21,8 +21,11 @@ face and the holder's lower face are (``tools.*.gap`` = 0).
   again with the holder moved (:meth:`Forming.hold_force`), and after every converged step the
   height is corrected by the measured force (:class:`HolderControl`), as a press's cushion
   does. Unlike a prescribed pressure, a rigid holder keeps the flange from
-  wrinkling under it. STEP tool sets have no known flat face: their holder is a rigid surface
-  at its given position (position-controlled).
+  wrinkling under it. A STEP holder is force-controlled the same way (``tools.step.holder.
+  control = "force"``, the default): the flat face is found on the tools themselves
+  (:func:`pinch_region`); with ``control = "position"`` it stays where its file puts it and
+  its force is measured, not set. A converged step whose holder force is more than
+  :data:`HOLDER_WARNING` off process.holder_force is a warning in the log.
 """
 
 from __future__ import annotations
@@ -64,6 +67,18 @@ HOLDER_LEAST_SLOPE = 0.005
 #: force grows faster than the target (hemisphere +-45: 1.6-1.8), and a slope kept at 1 made
 #: the moves overshoot by as much as they corrected, back and forth
 HOLDER_MOST_SLOPE = 10.0
+#: a converged step whose measured holder force is off process.holder_force by more than this
+#: fraction is a warning in the log (with the step and both forces) and is counted in
+#: summary.json: the log and the summary never state a force that was not applied
+HOLDER_WARNING = 0.05
+#: meshed (STEP) tools: the candidate lists' margin (mm, drape.tools.MeshedSurface): a point is
+#: searched again once it has moved this far (in the tool's frame) since its last search
+TOOL_LIST_MARGIN = 0.5
+#: STEP tools: a point of the flat blank is under the holder's flat face when the holder's and
+#: the die's normals there are within 1 degree of the press axis (cos 1 deg) and the opening
+#: between the two faces is within PINCH_TOLERANCE (mm) of the smallest (:func:`pinch_region`)
+FLAT_COSINE = math.cos(math.radians(1.0))
+PINCH_TOLERANCE = 0.05
 
 
 # --- validation of a forming job -------------------------------------------------------------------
@@ -74,6 +89,19 @@ def tool_set(config):
     tools = config.tools or ToolsConfig()
     return tools, {"hemisphere": tools.hemisphere, "double_dome": tools.double_dome,
                    "step": tools.step}[tools.kind]
+
+
+def holder_mode(config) -> str | None:
+    """How the holder is driven: "force" (to process.holder_force; the built-in holders and a
+    STEP holder by default), "position" (a STEP holder with control = "position") or None (no
+    holder: none given, or a force-controlled one with holder_force = 0)."""
+    tools, dims = tool_set(config)
+    if tools.kind == "step":
+        if not dims.holder.given:
+            return None
+        if dims.holder.control == "position":
+            return "position"
+    return "force" if config.process.holder_force > 0 else None
 
 
 def full_stroke(config) -> float | None:
@@ -111,6 +139,11 @@ def check_forming(config) -> None:
     if tools.kind == "step" and process.stroke is None:
         raise InputError("STEP tools have no known full stroke", key="process.stroke",
                          expected="the punch travel in mm")
+    if tools.kind == "step" and holder_mode(config) == "force" and not dims.die.given:
+        raise InputError("a force-controlled holder needs a die to press the blank against",
+                         key="tools.step.holder.control", value=dims.holder.control,
+                         expected="a [tools.step.die] file, control = \"position\", or "
+                                  "process.holder_force = 0 (no holder)")
     if limit is not None and process.stroke is not None and process.stroke > limit + 1e-9:
         raise InputError("the stroke is larger than the tools allow", key="process.stroke",
                          value=process.stroke,
@@ -153,9 +186,27 @@ def check_forming(config) -> None:
 
 # --- the holder's region ---------------------------------------------------------------------------
 
+def pinch_region(holder, die, points, comm, reach: float = ON_DIE_TOLERANCE):
+    """STEP tools, whatever their shape: the points (P, 3) of the flat blank that lie between a
+    flat face of the holder and one of the die (both normals within 1 degree of the press axis,
+    both faces within ``reach`` of the point), where the opening between the faces (the sum of
+    the two gaps) is within PINCH_TOLERANCE of its smallest value; and that smallest opening
+    (mm), which the holder closes before it pinches (collective). On the built-in hemisphere's
+    tools this is the ring r >= holder_inner_radius + holder_fillet_radius of holder_region."""
+    from mpi4py import MPI
+    above, below = holder.query(points, cutoff=reach), die.query(points, cutoff=reach)
+    facing = ((above.normal[:, 2] <= -FLAT_COSINE) & (below.normal[:, 2] >= FLAT_COSINE)
+              & (np.abs(above.gap) <= reach) & (np.abs(below.gap) <= reach))
+    opening = above.gap + below.gap
+    least = comm.allreduce(float(opening[facing].min()) if facing.any() else math.inf,
+                           op=MPI.MIN)
+    # no flat pinch anywhere: an empty region (HolderControl says so), opening 0
+    return facing & (opening <= least + PINCH_TOLERANCE), least if math.isfinite(least) else 0.0
+
+
 def holder_region(config):
     """A function (P, 3) positions -> mask of the points under the holder's flat face, or None
-    (STEP tools: the holder is a rigid surface)."""
+    (STEP tools: :func:`pinch_region` finds it on the tools)."""
     tools, dims = tool_set(config)
     if tools.kind == "hemisphere":
         inner = dims.holder_inner_radius + dims.holder_fillet_radius
@@ -282,12 +333,17 @@ class HolderControl:
 
     GAIN = 0.5
 
-    def __init__(self, force: float, area: float, penalty: float, smoothing: float):
+    def __init__(self, force: float, area: float, penalty: float, smoothing: float,
+                 opening: float = 0.0):
         if area <= 0.0:
             raise InputError("no blank under the blank holder", key="process.holder_force",
                              value=force, expected="a blank reaching under the holder's flat "
-                             "face, or holder_force = 0")
+                             "face (STEP tools: a flat face of the holder facing one of the "
+                             "die, within 1 mm of the blank's plane z = 0), or holder_force = 0")
         self.force, self.area, self.penalty, self.smoothing = force, area, penalty, smoothing
+        #: how far the holder travels before its face reaches the die's (STEP tools: the
+        #: opening between them where the blank lies in it, :func:`pinch_region`; 0 built-in)
+        self.opening = float(opening)
         self.target = force
 
     def lowering(self) -> float:
@@ -296,7 +352,7 @@ class HolderControl:
         least = 1e-3 * self.force
         d = -2.0 * gap_for_pressure(max(self.target, least) / self.area, self.penalty,
                                     self.smoothing)
-        return d - 2.0 * max(least - self.target, 0.0) / (self.penalty * self.area)
+        return self.opening + d - 2.0 * max(least - self.target, 0.0) / (self.penalty * self.area)
 
     def update(self, measured: float) -> None:
         self.target += self.GAIN * (self.force - measured)
@@ -358,13 +414,15 @@ class Forming:
         else:
             started = time.perf_counter()
             meshed = build_tools(tools, comm=comm)
-            surfaces = {name: MeshedSurface(surface) for name, surface in meshed.items()}
+            surfaces = {name: MeshedSurface(surface, margin=TOOL_LIST_MARGIN)
+                        for name, surface in meshed.items()}
             self.tool_description = (f"{tools.kind} tools meshed by gmsh (" + ", ".join(
                 f"{name} {s.n_triangles} triangles" for name, s in surfaces.items())
                 + f", {time.perf_counter() - started:.1f} s)")
         self.holder_region = holder_region(config)
-        force_controlled = self.holder_region is not None
-        if force_controlled and self.process.holder_force == 0:
+        #: "force", "position" or None (:func:`holder_mode`)
+        self.holder_mode = holder_mode(config)
+        if self.holder_mode is None:
             surfaces = {name: s for name, s in surfaces.items() if name != "holder"}
         params = job.params
         h = config.mesh.size
@@ -377,10 +435,17 @@ class Forming:
         self.contributions = [self.tool_contact]
         #: force control of the holder (None: no holder, or a position-controlled STEP one)
         self.holder = None
-        self._holder_force_controlled = force_controlled and "holder" in surfaces
+        self._holder_force_controlled = self.holder_mode == "force" and "holder" in surfaces
         self.force_rows = []
-        say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, holder force "
-            f"{self.process.holder_force:g} N, penalty {self.penalty:.4g} N/mm^3 (smoothed over "
+        #: (step, measured force) of the converged steps off the target by > HOLDER_WARNING
+        self.holder_warnings = []
+        self.say = say
+        holder = {"force": f"holder force {self.process.holder_force:g} N (force-controlled)",
+                  "position": "holder position-controlled (where its STEP file puts it; its "
+                              "force is measured, process.holder_force is not applied)",
+                  None: "no holder"}[self.holder_mode if "holder" in surfaces else None]
+        say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, {holder}, "
+            f"penalty {self.penalty:.4g} N/mm^3 (smoothed over "
             f"{self.smoothing:.3g} mm), friction {contact.friction:g}"
             + (f", inertia {self.process.areal_density:g} kg/m^2, the punch at "
                f"{self.process.punch_speed:g} m/s after {self.process.punch_ramp:g} mm"
@@ -399,9 +464,16 @@ class Forming:
         if self._holder_force_controlled:
             reference = np.column_stack([self.tool_contact.reference_points,
                                          np.zeros(self.areas.size)])
-            area = self.comm.allreduce(float(self.areas[self.holder_region(reference)].sum()))
+            opening = 0.0
+            if self.holder_region is not None:
+                under = self.holder_region(reference)
+            else:       # STEP tools: the flat faces of holder and die, found on the tools
+                surfaces = self.tool_contact.surfaces
+                under, opening = pinch_region(surfaces["holder"], surfaces["die"], reference,
+                                              self.comm)
+            area = self.comm.allreduce(float(self.areas[under].sum()))
             self.holder = HolderControl(self.process.holder_force, area, self.penalty,
-                                        self.smoothing)
+                                        self.smoothing, opening)
             self.tool_contact.holder_control = self.holder
 
     def set_load(self, t: float) -> None:
@@ -531,6 +603,13 @@ class Forming:
         next step from the force it measured (:class:`HolderControl`)."""
         if self.holder is not None and row["t"] > 0:
             self.holder.update(row["holder_force"])
+            target, measured = self.process.holder_force, row["holder_force"]
+            if abs(measured - target) > HOLDER_WARNING * target:
+                self.holder_warnings.append((row["step"], measured))
+                self.say(f"drape run: warning: step {row['step']} (stroke {row['stroke']:.4g} "
+                         f"mm): the holder force is {measured:.5g} N, "
+                         f"{100 * (measured / target - 1):+.1f} % off its target "
+                         f"{target:g} N (process.holder_force)")
 
     def contact_pressure(self) -> np.ndarray:
         """Contact pressure of all tools (N/mm^2, holder included) averaged over each local cell."""
@@ -541,6 +620,25 @@ class Forming:
         return (p.reshape(-1, self.n_extra) * A).sum(axis=1) / A.sum(axis=1)
 
     # --- at the end ---------------------------------------------------------------------------------------
+    def _holder_summary(self, rows: list) -> dict:
+        """summary.json's holder entries: how it was driven, the force it was driven to (force
+        control only) and the force measured over the converged steps (never the config's
+        force where it was not applied)."""
+        measured = [r["holder_force"] for r in rows[1:] if "holder_force" in r]
+        mode = self.holder_mode if "holder" in self.tool_contact.surfaces else None
+        entries = {"holder_control": mode or "none"}
+        if mode == "force":
+            entries["holder_force_N"] = self.process.holder_force
+            entries["holder_force_steps_off_5pct"] = len(self.holder_warnings)
+        elif mode == "position":
+            entries["holder_force_N"] = float(measured[-1]) if measured else 0.0
+        else:
+            entries["holder_force_N"] = 0.0
+        if measured:
+            entries["holder_force_measured_N"] = [float(min(measured)), float(max(measured))]
+        return entries
+
+
     def finish(self, folder: Path, rows: list, seconds: float) -> dict:
         """force_stroke.csv/.png, shear maps, summary.json (collective; rank 0 writes)."""
         from drape import forming_output
@@ -549,6 +647,14 @@ class Forming:
         cells = forming_output.gather_cells(problem)
         summary = forming_output.shear_summary(problem, locking, self.comm)
         summary.update(forming_output.draw_in(problem, self.config.blank, self.comm))
+        measured = [r["holder_force"] for r in rows[1:] if "holder_force" in r]
+        if measured:
+            target = (f"its target {self.process.holder_force:g} N; "
+                      f"{len(self.holder_warnings)} step(s) off it by more than "
+                      f"{100 * HOLDER_WARNING:g} %" if self.holder is not None
+                      else "position-controlled")
+            self.say(f"drape run: holder force measured {min(measured):.5g} to "
+                     f"{max(measured):.5g} N over the converged steps ({target})")
         if self.comm.rank == 0:
             forces = [r.get("punch_force", 0.0) for r in rows]
             summary.update({
@@ -558,7 +664,7 @@ class Forming:
                 "tools_full_stroke_mm": full_stroke(self.config),
                 "max_punch_force_N": float(max(forces)),
                 "punch_force_at_end_N": float(forces[-1]),
-                "holder_force_N": self.process.holder_force,
+                **self._holder_summary(rows),
                 # the blank's inertia: a dynamic run's forces depend on these (docs/forming.md)
                 "areal_density_kg_per_m2": self.process.areal_density,
                 "punch_speed_m_per_s": self.process.punch_speed,

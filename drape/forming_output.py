@@ -139,7 +139,7 @@ def plot_force_stroke(folder: Path, rows: list, title: str) -> None:
             marker="o", ms=2.5, label="punch force (contact force summed over the blank)")
     if "holder_force" in rows[-1]:
         ax.plot(stroke, [r.get("holder_force", 0.0) for r in rows], color="tab:gray", lw=1.2,
-                ls="--", label="blank-holder force (prescribed)")
+                ls="--", label="blank-holder force (measured)")
     ax.set_xlabel("punch stroke (mm)")
     ax.set_ylabel("force (N)")
     ax.set_title(title or "punch force against stroke")

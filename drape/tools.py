@@ -441,9 +441,22 @@ class MeshedSurface:
     the surface still get the exact answer; for points farther away the reported distance is
     an upper bound of the true one, which is > cutoff. A finite-element solver needs exact
     answers near the tools only, and this bounds the cost of points far from them.
+
+    Candidate lists (``margin`` > 0, mm; for a solver that asks about the same points again
+    and again as they move a little): :meth:`query` keeps, per point, the position p0 where it
+    last searched, its distance d0 there, and the triangles within d0 + 2 margin of p0.
+    While a point stays within ``margin`` of p0, its closest triangle is among
+    them (a triangle left out is farther than d0 + 2 margin - margin from it, while the one
+    closest at p0 is nearer than d0 + margin), and of them only those within d0 + 2 delta of
+    p0 (delta the point's move since p0) can be closest: only these are evaluated, 2-5 per
+    point in a Newton iteration. A point that moved farther than margin is searched again. Points farther than cutoff + margin at p0 keep their closest
+    triangle then, whose distance stays an upper bound, above cutoff. So the answers are those
+    of the search without the lists. The lists are kept for one set of points (their number
+    and the cutoff): another set starts them again.
     """
 
-    def __init__(self, surface: TriangleSurface, k: int = 2, workers: int = 1):
+    def __init__(self, surface: TriangleSurface, k: int = 2, workers: int = 1,
+                 margin: float = 0.0):
         self.surface = surface
         self.name = surface.name
         tri = surface.triangles
@@ -454,6 +467,12 @@ class MeshedSurface:
         self._radii = np.max([np.linalg.norm(v - self._centroids, axis=1)
                               for v in (self._a, self._b, self._c)], axis=0)
         self._plane = _unit(np.cross(self._b - self._a, self._c - self._a))
+        # per triangle, for _project: edges e0 = b - a, e1 = c - a and their dot products
+        self._e0, self._e1 = self._b - self._a, self._c - self._a
+        e0e0 = np.einsum("ij,ij->i", self._e0, self._e0)
+        e0e1 = np.einsum("ij,ij->i", self._e0, self._e1)
+        e1e1 = np.einsum("ij,ij->i", self._e1, self._e1)
+        self._gram = np.stack([e0e0, e0e1, e1e1, e0e0 * e1e1 - e0e1 ** 2], axis=1)
         self.radius = float(self._radii.max())
         self._tree = cKDTree(self._centroids)
         smallest = max(float(self._radii.min()), 1e-9 * max(1.0, self.radius))
@@ -467,7 +486,55 @@ class MeshedSurface:
         self.n_triangles = len(tri)
         self.k = max(1, min(k, self.n_triangles))
         self.workers = workers
-        self.pairs_evaluated = 0   # a counter, for benchmarks
+        self.margin = float(margin)
+        self._lists = None          # the candidate lists (margin > 0), see _query_listed
+        self.pairs_evaluated = 0    # counters, for benchmarks
+        self.searched = 0           # points searched (not answered from their lists)
+
+    def _project(self, q, tris):
+        """Squared distances (M,) and barycentric coordinates (M, 3) of the closest points of
+        triangles ``tris`` (M,) to points q (M, 3), paired row by row: the projection on the
+        triangle's plane where it falls inside the triangle, else the nearest of its three
+        edges' closest points (the closest point of a triangle to a point whose projection
+        lies outside it is on its boundary). Per pair only w = q - a, |w|^2, w.e0 and w.e1
+        are vectors; the rest is scalars of the triangle (precomputed), which makes it several
+        times cheaper than :func:`closest_point_on_triangles` (the reference, which it
+        matches to round-off)."""
+        w = q - self._a[tris]
+        ww = np.einsum("ij,ij->i", w, w)
+        s0 = np.einsum("ij,ij->i", w, self._e0[tris])
+        s1 = np.einsum("ij,ij->i", w, self._e1[tris])
+        g = self._gram[tris]
+        d00, d01, d11, det = g[:, 0], g[:, 1], g[:, 2], g[:, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = (d11 * s0 - d01 * s1) / det
+            t = (d00 * s1 - d01 * s0) / det
+        inside = (v >= 0.0) & (t >= 0.0) & (v + t <= 1.0) & (det > 0.0)
+        bary = np.empty((tris.size, 3))
+        bary[:, 1], bary[:, 2] = v, t
+        bary[:, 0] = 1.0 - v - t
+        d2 = ww - v * s0 - t * s1
+        out = np.flatnonzero(~inside)
+        if out.size:
+            ww, s0, s1 = ww[out], s0[out], s1[out]
+            d00, d01, d11 = d00[out], d01[out], d11[out]
+            # edges a-b, a-c and b-c: the clamped parameter along each, and the squared distance
+            s2, d22 = s1 - s0 - d01 + d00, d11 - 2.0 * d01 + d00
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t0 = np.clip(np.where(d00 > 0.0, s0 / d00, 0.0), 0.0, 1.0)
+                t1 = np.clip(np.where(d11 > 0.0, s1 / d11, 0.0), 0.0, 1.0)
+                t2 = np.clip(np.where(d22 > 0.0, s2 / d22, 0.0), 0.0, 1.0)
+            edge = np.stack([ww - 2.0 * t0 * s0 + t0 * t0 * d00,
+                             ww - 2.0 * t1 * s1 + t1 * t1 * d11,
+                             ww - 2.0 * s0 + d00 - 2.0 * t2 * s2 + t2 * t2 * d22], axis=1)
+            which = np.argmin(edge, axis=1)
+            d2[out] = edge[np.arange(out.size), which]
+            zero = np.zeros(out.size)
+            tt = np.choose(which, [t0, t1, t2])
+            bary[out] = np.stack([np.choose(which, [1.0 - tt, 1.0 - tt, zero]),
+                                  np.choose(which, [tt, zero, 1.0 - tt]),
+                                  np.choose(which, [zero, tt, tt])], axis=1)
+        return np.maximum(d2, 0.0), bary
 
     def _evaluate(self, p, rows, tris, best):
         """Exact distances for the pairs (p[rows[i]], triangle tris[i]); keeps the closest per
@@ -476,8 +543,7 @@ class MeshedSurface:
             return
         tri_best, bary_best, d2_best = best
         self.pairs_evaluated += rows.size
-        _, bary, d2 = closest_point_on_triangles(p[rows], self._a[tris], self._b[tris],
-                                                 self._c[tris])
+        d2, bary = self._project(p[rows], tris)
         order = np.lexsort((d2, rows))
         rows_sorted = rows[order]
         first = np.ones(rows.size, dtype=bool)
@@ -499,6 +565,89 @@ class MeshedSurface:
         for lo in range(0, n, chunk):  # chunks bound the memory of the candidate arrays
             self._search(p, np.arange(lo, min(n, lo + chunk)), cutoff, best)
         return best[0], best[1], np.sqrt(best[2])
+
+    # --- candidate lists -----------------------------------------------------------------
+    def _query_listed(self, p, cutoff):
+        """closest_triangles(p, cutoff) through the candidate lists (class docstring)."""
+        n, m = p.shape[0], self.margin
+        lists = self._lists
+        if lists is None or lists["n"] != n or lists["cutoff"] != cutoff:
+            lists = self._lists = {"n": n, "cutoff": cutoff, "origin": p.copy(),
+                                   "d0": np.zeros(n), "start": np.zeros(n + 1, dtype=np.int64),
+                                   "tris": np.zeros(0, dtype=np.int64), "dist": np.zeros(0)}
+            moved = np.arange(n)
+        else:
+            moved = np.flatnonzero(np.linalg.norm(p - lists["origin"], axis=1) > m)
+        if moved.size:
+            self._relist(p, moved, cutoff)
+        start, tris = lists["start"], lists["tris"]
+        rows = np.repeat(np.arange(n), np.diff(start))
+        # a point moved by delta since p0 is nearer than d0 + delta to its closest triangle at
+        # p0, and any triangle farther than d0 + 2 delta from p0 is farther than that from it:
+        # only the entries within d0 + 2 delta are evaluated (delta << margin within a step)
+        delta = np.linalg.norm(p - lists["origin"], axis=1)
+        bound = lists["d0"] + 2.0 * delta + 1e-9 * (1.0 + lists["d0"])
+        use = np.flatnonzero(lists["dist"] <= bound[rows])
+        rows, tris = rows[use], tris[use]
+        self.pairs_evaluated += rows.size
+        d2, bary = self._project(p[rows], tris)
+        first = np.searchsorted(rows, np.arange(n))       # every point keeps its p0 closest
+        least = np.minimum.reduceat(d2, first)
+        at = np.flatnonzero(d2 == least[rows])
+        _, pick = np.unique(rows[at], return_index=True)
+        pick = at[pick]
+        return tris[pick], bary[pick], np.sqrt(d2[pick])
+
+    def _relist(self, p, moved, cutoff):
+        """Search the points ``moved`` again and replace their lists (and origins)."""
+        lists, m = self._lists, self.margin
+        q = p[moved]
+        self.searched += moved.size
+        reach = None if cutoff is None else cutoff + m
+        tri, _, dist = self.closest_triangles(q, reach)
+        near = np.ones(moved.size, dtype=bool) if reach is None else dist <= reach
+        # first every point's closest at p0 with its distance d0 (so that np.unique below keeps
+        # that entry); far points keep only it (an upper bound, above the cutoff)
+        rows, cand, dists = [np.arange(moved.size)], [tri], [dist]
+        inside = np.flatnonzero(near)
+        radius = dist[inside] + 2.0 * m
+        for tree, members, r_class in self._classes:
+            found = tree.query_ball_point(q[inside], radius + r_class, workers=self.workers,
+                                          return_sorted=False)
+            sizes = np.fromiter((len(f) for f in found), dtype=np.int64, count=found.size)
+            if not sizes.sum():
+                continue
+            local = np.repeat(np.arange(inside.size), sizes)
+            members_found = members[np.concatenate([f for f in found if f]).astype(np.int64)]
+            centre = np.linalg.norm(q[inside][local] - self._centroids[members_found], axis=1)
+            lower = self._lower_bound(q[inside][local], members_found[:, None],
+                                      centre[:, None])[:, 0]
+            keep = np.flatnonzero(lower <= radius[local])
+            local, members_found = local[keep], members_found[keep]
+            # the list holds the triangles within d0 + 2 margin: their exact distance decides
+            d2, _ = self._project(q[inside][local], members_found)
+            keep = d2 <= radius[local] ** 2
+            rows.append(inside[local[keep]])
+            cand.append(members_found[keep])
+            dists.append(np.sqrt(d2[keep]))
+        rows, cand, dists = np.concatenate(rows), np.concatenate(cand), np.concatenate(dists)
+        # the new lists (rows index into moved) replace the old ones of those points
+        n = lists["n"]
+        start, tris = lists["start"], lists["tris"]
+        old_rows = np.repeat(np.arange(n), np.diff(start))
+        stays = np.ones(n, dtype=bool)
+        stays[moved] = False
+        keep_old = stays[old_rows]
+        all_rows = np.concatenate([old_rows[keep_old], moved[rows]])
+        all_tris = np.concatenate([tris[keep_old], cand])
+        all_dist = np.concatenate([lists["dist"][keep_old], dists])
+        # sorted by point, no repeats (the closest at p0 comes twice: the first, d0, is kept)
+        key, first = np.unique(all_rows * self.n_triangles + all_tris, return_index=True)
+        lists["tris"] = key % self.n_triangles
+        lists["dist"] = all_dist[first]
+        lists["start"] = np.searchsorted(key // self.n_triangles, np.arange(n + 1))
+        lists["origin"][moved] = q
+        lists["d0"][moved] = dist
 
     def _lower_bound(self, p, tris, dist):
         """Lower bound of the distance from points p (n, 3) to triangles tris (n, k) whose
@@ -546,10 +695,15 @@ class MeshedSurface:
 
     def query(self, points, offset=None, cutoff: float | None = None) -> ContactQuery:
         p, shift = _tool_frame(points, offset)
-        tri, bary, dist = self.closest_triangles(p, cutoff)
+        if self.margin > 0.0:
+            tri, bary, dist = self._query_listed(p, cutoff)
+        else:
+            self.searched += p.shape[0]
+            tri, bary, dist = self.closest_triangles(p, cutoff)
         nodes = self.surface.triangles[tri]
         normal = _unit(np.einsum("ij,ijk->ik", bary, self._normals[nodes]))
         closest = np.einsum("ij,ijk->ik", bary, self.surface.nodes[nodes])
+        dist = np.linalg.norm(p - closest, axis=1)      # from the point, not |w|^2 - ...
         side = np.einsum("ij,ij->i", p - closest, normal)
         gap = np.where(side >= 0.0, dist, -dist)
         return ContactQuery(gap, normal, closest + shift)

@@ -280,11 +280,22 @@ class StepTool:
             raise InputError("not a 3-vector", key="translate", value=list(self.translate),
                              expected="[dx, dy, dz]")
         if not self.file:
-            if self != StepTool():
+            if self != type(self)():
                 raise InputError("settings given but no file", key="file",
                                  expected="the path of a STEP file")
             return
         check_step_file(self.file, self.side, key="file")
+
+
+@dataclasses.dataclass(frozen=True)
+class StepHolder(StepTool):
+    """The blank holder from a STEP file, and how it is driven."""
+
+    control: Literal["force", "position"] = setting(
+        "force", "'force': the holder moves along the press axis (z) until its contact force is "
+        "process.holder_force, as the built-in holders do; 'position': it stays where the file "
+        "(scale, translate) puts it, and its force is whatever the blank answers (measured, "
+        "reported in the log and summary.json)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -293,7 +304,7 @@ class StepTools:
 
     punch: StepTool = setting(StepTool(), "the punch (moves down by the stroke)")
     die: StepTool = setting(StepTool(), "the die")
-    holder: StepTool = setting(StepTool(), "the blank holder")
+    holder: StepHolder = setting(StepHolder(), "the blank holder")
 
     def validate(self):
         if not (self.punch.given or self.die.given or self.holder.given):

@@ -359,6 +359,11 @@ CASES: list[Case] = [
     Case("tools-step-none", "`kind = \"step\"` with no STEP file", ("tools", "tools.toml", "--check"),
          tools(text='[tools]\nkind = "step"\n'), "tools.toml", "tools.step", None,
          "a [tools.step.punch] (or .die, .holder) table with file"),
+    Case("tools-holder-control", "`[tools.step.holder] control = \"pressure\"`",
+         ("tools", "tools.toml", "--check"),
+         tools(text='[tools]\nkind = "step"\n[tools.step.holder]\nfile = "holder.step"\n'
+                    'control = "pressure"\n'),
+         "tools.toml", "tools.step.holder.control", "'pressure'", "one of 'force', 'position'"),
     Case("tools-output", "`--output tools.stl` (an unknown format)",
          ("tools", "tools.toml", "--output", "tools.stl"), tools(text=HEMISPHERE), "--output", None,
          "'tools.stl'", "a path ending in .vtu or .msh"),
