@@ -24,7 +24,6 @@ from drape.law import kernel
 from drape.law.parameters import MaterialParameters
 
 ELASTIC = kernel.ELASTIC
-GAMMA_P_LIMIT = kernel.GAMMA_P_LIMIT
 
 
 @dataclasses.dataclass
