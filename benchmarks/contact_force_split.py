@@ -27,7 +27,7 @@ def main(argv=None) -> int:
     config, folder, *overrides = argv
     from mpi4py import MPI
 
-    from drape import forming
+    from drape.forming import press as forming
     from drape.job import load_job
     from drape.run import run_job
 

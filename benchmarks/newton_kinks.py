@@ -41,7 +41,8 @@ def main(argv=None) -> int:
     threshold = float(threshold)
     from petsc4py import PETSc
 
-    from drape import forming, solver
+    from drape.fe import solver
+    from drape.forming import press as forming
     from drape.job import load_job
     from drape.run import run_job
 

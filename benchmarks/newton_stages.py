@@ -53,7 +53,8 @@ def main(argv=None) -> int:
 
     from mpi4py import MPI
 
-    from drape import forming, solver
+    from drape.fe import solver
+    from drape.forming import press as forming
     from drape.job import load_job
     from drape.run import run_job
 

@@ -559,7 +559,7 @@ def add_arguments(parser) -> None:
 
 
 def main(args) -> int:
-    from drape.folder import claim
+    from drape.io.folder import claim
     for key, value, lo, hi in (("--surfaces", args.surfaces, 0, 6), ("--degree", args.degree, 1, 12),
                                ("--fit-rows", args.fit_rows, 20, 10 ** 6)):
         if not lo <= value <= hi:

@@ -21,7 +21,7 @@ SUBCOMMANDS = {
     "picture-frame": "drape.picture_frame",
     "run": "drape.run",
     "calibrate": "drape.calibrate",
-    "tools": "drape.tools_cli",
+    "tools": "drape.tools_command",
     "view": "drape.view",
 }
 

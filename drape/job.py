@@ -16,7 +16,7 @@ from typing import Literal
 
 from drape.config import (describe, each, from_mapping, in_range, non_negative, positive,
                           read_toml, setting)
-from drape.contact import ContactParameters
+from drape.forming.contact import ContactParameters
 from drape.errors import InputError
 from drape.geometry.tools import ToolsConfig
 
@@ -120,7 +120,7 @@ DEFAULT_FORMING_BENDING = 10.0
 @dataclasses.dataclass(frozen=True)
 class BendingConfig:
     """The fabric's bending rigidity: not part of the paper's in-plane law, a hinge energy
-    across the element edges (drape/membrane.py). A flat blank has no bending energy."""
+    across the element edges (drape/fe/membrane.py). A flat blank has no bending energy."""
 
     rigidity: float | None = setting(
         None, "bending rigidity B, moment per unit width per unit curvature; unset: 0 for a "
@@ -279,7 +279,7 @@ class JobConfig:
     contact: ContactParameters = setting(ContactParameters(), "tool-fabric contact and friction")
 
     def validate(self):
-        from drape.loading import CONSTANTS, FUNCTIONS, VARIABLES
+        from drape.fe.loading import CONSTANTS, FUNCTIONS, VARIABLES
         reserved = set(VARIABLES) | set(CONSTANTS) | set(FUNCTIONS)
         for name in self.history:
             if not name.isidentifier() or name in reserved:
@@ -346,7 +346,7 @@ class JobConfig:
 
 
     def _validate_forming(self):
-        from drape.forming import check_forming
+        from drape.forming.press import check_forming
         check_forming(self)
 
 
@@ -409,7 +409,7 @@ def load_job(path: str | Path, overrides: list[str] | None = None) -> Job:
     """Read, validate and resolve a job file (material, formulas); raises InputError.
     ``overrides`` are ``table.key=value`` strings applied before validation."""
     from drape.law.parameters import MaterialParameters, load_material
-    from drape.loading import Loading
+    from drape.fe.loading import Loading
 
     path = Path(path)
     data = apply_overrides(read_toml(path), overrides)

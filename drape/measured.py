@@ -442,7 +442,7 @@ def _rms(a, b) -> float:
 def main(args, base, data: SeriesData) -> int:
     """`drape calibrate` on monotonic series: fit, then material.toml, calibration.csv/png."""
     from drape.calibrate import RESULT_FILES
-    from drape.folder import claim
+    from drape.io.folder import claim
     from drape.law.parameters import material_toml
 
     angle_range = parse_angle_range(args.angle_range)

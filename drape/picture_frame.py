@@ -259,7 +259,7 @@ def add_arguments(parser) -> None:
 
 
 def main(args) -> int:
-    from drape.folder import claim
+    from drape.io.folder import claim
     if args.material is None:
         params = MaterialParameters()
         if args.surfaces is not None:

@@ -14,7 +14,7 @@ overwritten without --overwrite. See docs/fe-solver.md.
 Progress (rank 0 only, on stdout): on a terminal one redrawn line, a bar over the load factor t
 from 0 to 1 with the step, Newton iterations, step size, elapsed time and an estimate of the
 time left (the load still to go at the slower of the average pace and the last 3 steps';
-drape.progress); otherwise (a log file, a batch job, and always under mpirun) one plain line per
+drape.io.progress); otherwise (a log file, a batch job, and always under mpirun) one plain line per
 converged step; nothing with --quiet. Cutbacks and warnings get lines of their own. View the
 results with `drape view`.
 """
@@ -66,7 +66,7 @@ def main(args) -> int:
 
     from drape.errors import Interrupted, WriteFailed
     from drape.job import load_job
-    from drape.solver import parse_option
+    from drape.fe.solver import parse_option
 
     options = dict(parse_option(text) for text in args.petsc_option)
     job = load_job(args.config, overrides=args.set)
@@ -106,13 +106,13 @@ def resume_command(args, ranks: int) -> str:
 
 
 def step_progress(job, *, enabled: bool, stream=None):
-    """The progress display of `drape run` (drape.progress.Progress on stdout): a redrawn bar
+    """The progress display of `drape run` (drape.io.progress.Progress on stdout): a redrawn bar
     over the load factor on a terminal, one line per converged step otherwise (and always under
     mpirun), nothing when disabled; ``progress.on_step`` is run_job's on_step."""
     import os
     import sys
 
-    from drape.progress import Progress
+    from drape.io.progress import Progress
 
     progress = Progress(1.0, enabled=enabled, stream=stream if stream is not None else sys.stdout)
     if any(name in os.environ for name in ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMI_RANK")):
@@ -156,19 +156,19 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     """
     from mpi4py import MPI
 
-    from drape import bias_extension, frame_force
-    from drape.checkpoint import Checkpoints, rewind_outputs
-    from drape.constraints import PrescribedMotion
-    from drape.disk import Disk, estimate
+    from drape.reports import bias_extension, frame_force
+    from drape.io.checkpoint import Checkpoints, rewind_outputs
+    from drape.fe.constraints import PrescribedMotion
+    from drape.io.disk import Disk, estimate
     from drape.errors import InputError, Interrupted, RunFailed, WriteFailed
-    from drape.folder import claim
-    from drape.interrupt import StopRequest
+    from drape.io.folder import claim
+    from drape.io.interrupt import StopRequest
     from drape.law.nested_surface import NestedSurfaceLaw
-    from drape.loading import Loading
-    from drape.membrane import MembraneProblem
-    from drape.mesh import create_blank_mesh
-    from drape.output import FIELDS_FILE, STEPS_FILE, ResultsWriter
-    from drape.solver import NewtonSolver, run_load_steps
+    from drape.fe.loading import Loading
+    from drape.fe.membrane import MembraneProblem
+    from drape.fe.mesh import create_blank_mesh
+    from drape.io.writer import FIELDS_FILE, STEPS_FILE, ResultsWriter
+    from drape.fe.solver import NewtonSolver, run_load_steps
 
     _quiet_jit_logging()
     comm = comm or MPI.COMM_WORLD
@@ -181,7 +181,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
     forming = None
     if config.process is not None:
-        from drape.forming import Forming
+        from drape.forming.press import Forming
         forming = Forming(job, comm, log=say)
     try:
         blank_mesh = create_blank_mesh(comm, config.blank, config.mesh,
@@ -387,7 +387,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
 
 def write_failed(failure, writer, checkpoints, rows, folder):
-    """After a write failure (drape.disk): fields.xdmf back to its last complete step; a
+    """After a write failure (drape.io.disk): fields.xdmf back to its last complete step; a
     checkpoint of that step when the failure came before the step changed anything (a step
     that would not fit) and there is room for one (else the last good one is kept). Returns
     the WriteFailed to raise: the failure, what is kept, and whether a resume can follow."""
@@ -399,7 +399,7 @@ def write_failed(failure, writer, checkpoints, rows, folder):
         try:
             checkpoints.save_last(check_space=True)
         except WriteFailed:
-            from drape.disk import size
+            from drape.io.disk import size
             room = size(checkpoints.disk.checkpoint_bytes())
     kept = (f"; results up to step {rows[-1]['step']} (t = {rows[-1]['t']:.6g}) are kept in "
             f"{folder}")
@@ -419,7 +419,7 @@ def write_failed(failure, writer, checkpoints, rows, folder):
     return error
 
 
-#: what a run writes in its folder (drape.folder.claim refuses to overwrite them silently)
+#: what a run writes in its folder (drape.io.folder.claim refuses to overwrite them silently)
 RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
 #: removed with them by --overwrite
 ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "checkpoint.h5",

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from drape.tools import TriangleSurface
+from drape.forming.surfaces import TriangleSurface
 
 _counter = itertools.count()
 

@@ -326,7 +326,7 @@ def test_a_signal_during_a_newton_attempt_ends_it_there(comm, shared_tmp, monkey
     remaining iterations; the run stops after the last converged step (Interrupted)."""
     from drape.errors import Interrupted
     from drape.job import load_job
-    from drape.membrane import MembraneProblem
+    from drape.fe.membrane import MembraneProblem
     from drape.run import run_job
 
     calls = []

@@ -1,4 +1,4 @@
-"""The job config of `drape run` (drape.job, drape.loading) and the step logic (drape.solver):
+"""The job config of `drape run` (drape.job, drape.fe.loading) and the step logic (drape.fe.solver):
 validation with clear errors, formulas, histories, load steps and cutbacks. No DOLFINx here."""
 
 import math
@@ -10,8 +10,8 @@ import pytest
 from conftest import CONFIGS
 from drape.errors import InputError, RunFailed
 from drape.job import StepsConfig, key_table, load_job
-from drape.loading import Formula, Loading, VARIABLES
-from drape.solver import SolveResult, next_load, parse_option, run_load_steps
+from drape.fe.loading import Formula, Loading, VARIABLES
+from drape.fe.solver import SolveResult, next_load, parse_option, run_load_steps
 
 
 def write(tmp_path, text, name="job.toml"):

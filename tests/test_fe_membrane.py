@@ -1,4 +1,4 @@
-"""The membrane problem (drape/membrane.py): the Jacobian is the derivative of the residual
+"""The membrane problem (drape/fe/membrane.py): the Jacobian is the derivative of the residual
 (the law's consistent tangent, yarn tension and the geometric stiffness, in 3D), point
 contributions enter both as documented, and the regularisation shows up in its own column."""
 
@@ -12,14 +12,14 @@ import pytest
 from drape.job import BlankConfig, MeshConfig, load_job
 from drape.law.nested_surface import LawState, NestedSurfaceLaw
 from drape.law.parameters import MaterialParameters
-from drape.membrane import PointContribution
+from drape.fe.membrane import PointContribution
 from fe_helpers import central_difference, jacobian_action, residual
 
 
 def _problem(comm, cell="quadrilateral", yarn_angle=0.0, pattern="aligned", contributions=None,
              damping=1e-3, bending=0.0, size=10.0, length=40.0, width=30.0, inertia=False):
-    from drape.membrane import MembraneProblem
-    from drape.mesh import create_blank_mesh
+    from drape.fe.membrane import MembraneProblem
+    from drape.fe.mesh import create_blank_mesh
     blank = BlankConfig(length=length, width=width, yarn_angle=yarn_angle)
     bm = create_blank_mesh(comm, blank, MeshConfig(cell=cell, pattern=pattern, size=size))
     law = NestedSurfaceLaw(MaterialParameters())
@@ -296,7 +296,7 @@ def test_newtons_shear_tangent_is_stiffened_only_near_neutral_loading():
     nothing. The points come from the law itself: sheared to 3 deg (plastic), committed, then
     loaded on by 1e-7 and by 1e-2 in C12, and unloaded by 1e-5 (within the innermost
     surface: elastic)."""
-    from drape.membrane import neutral_loading_tangent
+    from drape.fe.membrane import neutral_loading_tangent
     law = NestedSurfaceLaw(MaterialParameters())
     one = np.ones(3)
     state = LawState.virgin(3, law.n)

@@ -1,4 +1,4 @@
-"""Blank meshes (geometry/blank.py, drape/mesh.py): areas, named boundaries, yarn alignment,
+"""Blank meshes (geometry/blank.py, drape/fe/mesh.py): areas, named boundaries, yarn alignment,
 conformity of the +-45 deg diamond lattice, and clear errors for meshes that cannot be built."""
 
 import math
@@ -75,7 +75,7 @@ def _measure(blank_mesh, name=None):
 @pytest.mark.parametrize("yarn_angle, cell", [(0.0, "quadrilateral"), (90.0, "triangle"),
                                                (45.0, "quadrilateral"), (-45.0, "triangle")])
 def test_aligned_rectangles(comm, yarn_angle, cell):
-    from drape.mesh import create_blank_mesh
+    from drape.fe.mesh import create_blank_mesh
     blank = BlankConfig(length=100.0, width=50.0, yarn_angle=yarn_angle)
     bm = create_blank_mesh(comm, blank, MeshConfig(cell=cell, size=6.0))
     assert bm.mesh.topology.cell_type.name == cell
@@ -85,7 +85,7 @@ def test_aligned_rectangles(comm, yarn_angle, cell):
 
 
 def test_free_meshes_and_the_aligned_disc(comm):
-    from drape.mesh import create_blank_mesh
+    from drape.fe.mesh import create_blank_mesh
     bm = create_blank_mesh(comm, BlankConfig(length=80.0, width=30.0, yarn_angle=30.0),
                            MeshConfig(pattern="free", cell="quadrilateral", size=5.0))
     assert _measure(bm) == pytest.approx(2400.0, rel=1e-12)
@@ -117,7 +117,7 @@ def test_free_meshes_and_the_aligned_disc(comm):
     (BlankConfig(length=1000.0, width=1000.0), MeshConfig(size=0.1), "mesh.size"),
 ])
 def test_meshes_that_cannot_be_built_are_input_errors_on_every_rank(comm, blank, mesh, key):
-    from drape.mesh import create_blank_mesh
+    from drape.fe.mesh import create_blank_mesh
     with pytest.raises(InputError) as caught:
         create_blank_mesh(comm, blank, mesh)
     assert caught.value.key == key

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import CONFIGS
-from drape.frame_force import closed_form
+from drape.reports.frame_force import closed_form
 from drape.job import load_job
 from drape.picture_frame import drive
 from drape.run import run_job

@@ -51,7 +51,7 @@ def test_the_jacobian_is_a_block_matrix_only_under_lu_with_mumps():
     preconditioner cuts through the 3x3 blocks or does not take them (field split, GAMG, a
     Cholesky)."""
     from drape.job import SolverConfig
-    from drape.solver import default_options, jacobian_matrix_type
+    from drape.fe.solver import default_options, jacobian_matrix_type
     direct = default_options(SolverConfig(linear="direct"), 1.0)
     assert jacobian_matrix_type(direct) == "baij"
     assert jacobian_matrix_type({**direct, "ksp_type": "gmres", "snes_lag_preconditioner": "-2"}) == "baij"

@@ -2,11 +2,11 @@
 pointwise and vectorised (numpy only), with their consistent tangents.
 
 At each quadrature point the finite-element layer supplies, from the current position, the
-tool's gap g and unit normal n (pointing away from the tool, see :mod:`drape.tools`) and the
+tool's gap g and unit normal n (pointing away from the tool, see :mod:`drape.forming.surfaces`) and the
 slip Δs of the fabric relative to the tool (a 3-vector: the displacement increment over the
 current load step minus the tool's rigid motion, plus the elastic slip the point held in the
 stick zone at the last converged step, :func:`elastic_slip`, which
-:class:`drape.forming.ToolContact` keeps: so friction has memory, and a point drawn slowly
+:class:`drape.forming.press.ToolContact` keeps: so friction has memory, and a point drawn slowly
 over a tool reaches μ p whatever the step size). :func:`traction` returns the traction t the tool exerts on the fabric (N/mm², per unit reference area), its derivative
 dt/du with respect to the fabric displacement (3×3 per point) and the contact pressure.
 

@@ -9,13 +9,13 @@ blank (rectangle or disc) is centred on the tools' axis in the plane z = 0, wher
 face and the holder's lower face are (``tools.*.gap`` = 0).
 
 * The punch and the die are rigid surfaces (exact for the hemisphere's surfaces of revolution,
-  :mod:`drape.tools`, and for the double dome's rolling-ball constructions,
-  :mod:`drape.double_dome`; an exact closest point on the gmsh triangulation of STEP tools) queried at
-  the membrane's quadrature points from their current positions; :func:`drape.contact.traction`
+  :mod:`drape.forming.surfaces`, and for the double dome's rolling-ball constructions,
+  :mod:`drape.forming.double_dome`; an exact closest point on the gmsh triangulation of STEP tools) queried at
+  the membrane's quadrature points from their current positions; :func:`drape.forming.contact.traction`
   gives traction and tangent. The punch moves by (0, 0, -stroke * t).
 * The blank holder is a rigid tool too, force-controlled: a membrane has no thickness, so the
   holder pinches the flange against the die, both in smoothed penalty contact
-  (:func:`drape.contact.normal_pressure`); its height is set so that the pinched flange carries
+  (:func:`drape.forming.contact.normal_pressure`); its height is set so that the pinched flange carries
   the pressure F / A (A the blank's reference area under the holder's flat face); a converged
   step whose measured holder force is off F by more than :data:`HOLDER_TOLERANCE` is solved
   again with the holder moved (:meth:`Forming.hold_force`), and after every converged step the
@@ -38,9 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
-from drape.contact import elastic_slip, gap_for_pressure, traction
+from drape.forming.contact import elastic_slip, gap_for_pressure, traction
 from drape.errors import InputError
-from drape.membrane import PointContribution
+from drape.fe.membrane import PointContribution
 
 FORCE_STROKE_FILE = "force_stroke.csv"
 SUMMARY_FILE = "summary.json"
@@ -71,7 +71,7 @@ HOLDER_MOST_SLOPE = 10.0
 #: fraction is a warning in the log (with the step and both forces) and is counted in
 #: summary.json: the log and the summary never state a force that was not applied
 HOLDER_WARNING = 0.05
-#: meshed (STEP) tools: the candidate lists' margin (mm, drape.tools.MeshedSurface): a point is
+#: meshed (STEP) tools: the candidate lists' margin (mm, drape.forming.surfaces.MeshedSurface): a point is
 #: searched again once it has moved this far (in the tool's frame) since its last search
 TOOL_LIST_MARGIN = 0.5
 #: STEP tools: a point of the flat blank is under the holder's flat face when the holder's and
@@ -290,7 +290,7 @@ class ToolContact(PointContribution):
 
     def commit(self) -> None:
         """The converged step becomes the reference of the next; each point keeps the part of
-        its tangential slip within the stick zone (:func:`drape.contact.elastic_slip`)."""
+        its tangential slip within the stick zone (:func:`drape.forming.contact.elastic_slip`)."""
         self.committed_u = np.array(self._u, copy=True)
         self.committed_offsets = {k: v.copy() for k, v in self.offsets.items()}
         for name, (slip, n) in self._trial_slip.items():
@@ -321,7 +321,7 @@ class HolderControl:
     The flange of reference area A (under the holder's flat face) pinched between the die
     (top at z = 0) and the holder (bottom at z = -d) settles midway, at a gap -d/2 from each,
     where both push with the pressure p(-d/2) of the smoothed penalty; so d = -2 g(F' / A) with
-    g the inverse of the penalty law (:func:`drape.contact.gap_for_pressure`). F' starts at F
+    g the inverse of the penalty law (:func:`drape.forming.contact.gap_for_pressure`). F' starts at F
     and after every converged step moves by half the difference between F and the measured
     holder force (fabric thicker than flat where it wrinkles or bunches, the flange leaving the
     flat face), which brings the measured force to F within a few steps. Where the fabric
@@ -395,7 +395,7 @@ class Forming:
     def __init__(self, job, comm, log=None):
         from drape.geometry.tools import (analytic_double_dome_tools, analytic_tools,
                                           build_tools)
-        from drape.tools import MeshedSurface
+        from drape.forming.surfaces import MeshedSurface
 
         self.job, self.comm = job, comm
         config = job.config
@@ -641,12 +641,12 @@ class Forming:
 
     def finish(self, folder: Path, rows: list, seconds: float) -> dict:
         """force_stroke.csv/.png, shear maps, summary.json (collective; rank 0 writes)."""
-        from drape import forming_output
+        from drape.forming import reports
         problem = self.problem
         locking = self.process.locking_angle
-        cells = forming_output.gather_cells(problem)
-        summary = forming_output.shear_summary(problem, locking, self.comm)
-        summary.update(forming_output.draw_in(problem, self.config.blank, self.comm))
+        cells = reports.gather_cells(problem)
+        summary = reports.shear_summary(problem, locking, self.comm)
+        summary.update(reports.draw_in(problem, self.config.blank, self.comm))
         measured = [r["holder_force"] for r in rows[1:] if "holder_force" in r]
         if measured:
             target = (f"its target {self.process.holder_force:g} N; "
@@ -679,9 +679,9 @@ class Forming:
                 "cells": problem.mesh.topology.index_map(problem.mesh.topology.dim).size_global,
             })
             folder = Path(folder)
-            forming_output.write_force_stroke(folder, rows)
-            forming_output.plot_force_stroke(folder, rows, self.config.title)
-            forming_output.plot_shear_maps(folder, cells, locking, self.config.title)
+            reports.write_force_stroke(folder, rows)
+            reports.plot_force_stroke(folder, rows, self.config.title)
+            reports.plot_shear_maps(folder, cells, locking, self.config.title)
             with (folder / SUMMARY_FILE).open("w") as stream:
                 json.dump(summary, stream, indent=2)
                 stream.write("\n")

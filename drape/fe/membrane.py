@@ -183,7 +183,7 @@ class MembraneProblem:
         jacobian += k * du[2] * v[2] * dx_extra
         regularisation_work = 0.5 * k * (u[2] - self.u_committed[2]) ** 2 * dx_extra
 
-        # --- inertia (implicit dynamics; a forming job sets both every step, drape/forming.py):
+        # --- inertia (implicit dynamics; a forming job sets both every step, drape/forming/press.py):
         # k_m (u - u_anchor) with u_anchor the motion carried on from the last steps, k_m in N/mm^3
         self.inertia_constant = fem.Constant(msh, 0.0)
         self.u_anchor = None
