@@ -143,13 +143,27 @@ class RunSummary:
     timings: dict
 
 
+@dataclasses.dataclass
+class RunParts:
+    """What a run is made of, handed to the ``on_start`` hook (benchmarks and tests read it;
+    the run owns it)."""
+    job: object
+    problem: object      #: drape.fe.membrane.MembraneProblem
+    solver: object       #: drape.fe.solver.NewtonSolver
+    motion: object       #: drape.fe.constraints.PrescribedMotion
+    forming: object      #: drape.forming.press.Forming, or None for a flat job
+
+
 def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, log=None,
-            jit_params=None, resume=False, overwrite=False) -> RunSummary:
+            jit_params=None, resume=False, overwrite=False, on_start=None, on_attempt=None,
+            on_solve=None) -> RunSummary:
     """Run a loaded :class:`~drape.job.Job` on ``comm`` (default COMM_WORLD).
 
-    on_step(step_row, problem) is called on every rank after each converged step is written
-    (`drape run` shows its progress from there); log(text) gets the other messages (start,
-    warnings, cutbacks).
+    Hooks, each optional and called on every rank: on_start(RunParts) once the run is set up;
+    on_attempt(t) before each Newton attempt at load factor t; on_solve(solver, result) after
+    each Newton solve (a holder's re-solves too); on_step(step_row, problem) after each
+    converged step is written (`drape run` shows its progress from there). log(text) gets the
+    other messages (start, warnings, cutbacks).
     Raises RunFailed (results so far written) when a step does not converge, Interrupted on
     SIGTERM/SIGINT (after the checkpoint), InputError if the results folder holds results and
     neither ``overwrite`` (start over) nor ``resume`` (continue from its checkpoint) is given.
@@ -207,7 +221,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     force_scale = job.params.mu * max(job.params.K1, job.params.K2) * math.sqrt(area)
     stop = StopRequest()
     solver = NewtonSolver(problem, config.solver, force_scale, petsc_options,
-                          interrupted=lambda: bool(stop.signal))
+                          interrupted=lambda: bool(stop.signal), on_solve=on_solve)
     rows, frame_rows = [], []
     ledger = {"external": 0.0, "regularisation": 0.0, "f": None, "g": None}
     checkpoints = Checkpoints(folder, problem, job, config.output.checkpoint_every, rows,
@@ -294,6 +308,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
     def attempt(t):
         stop_if_requested()
+        if on_attempt is not None:
+            on_attempt(t)
         # a step whose files would not fit on the disk: the run stops before solving it
         number = rows[-1]["step"] + 1
         disk.check(number, checkpoints.due(number))
@@ -332,6 +348,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         if on_step is not None:
             on_step(row, problem)
 
+    if on_start is not None:
+        on_start(RunParts(job, problem, solver, motion, forming))
     write_failure = None
     stop.install()
     try:

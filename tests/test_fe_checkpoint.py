@@ -263,6 +263,7 @@ def run_with_nan(comm, folder, monkeypatch, *, law_calls=None, residual_calls=No
     from drape.run import run_job
 
     count = {"law": 0, "residual": 0}
+    forms = {}
     law_calls = law_calls or (lambda n: False)
     residual_calls = residual_calls or (lambda n: False)
     update, assemble = NestedSurfaceLaw.update, fpetsc.assemble_vector
@@ -276,7 +277,7 @@ def run_with_nan(comm, folder, monkeypatch, *, law_calls=None, residual_calls=No
 
     def poisoned_assemble(*args, **kwargs):
         result = assemble(*args, **kwargs)
-        if len(args) == 2:    # the residual (into b), not the internal force
+        if args[-1] is forms.get("residual"):   # Newton's residual, not the internal force
             count["residual"] += 1
             if comm.rank == 0 and residual_calls(count["residual"]):
                 args[0].array[:] = np.inf
@@ -285,7 +286,8 @@ def run_with_nan(comm, folder, monkeypatch, *, law_calls=None, residual_calls=No
     monkeypatch.setattr(NestedSurfaceLaw, "update", poisoned_update)
     monkeypatch.setattr(fpetsc, "assemble_vector", poisoned_assemble)
     return run_job(load_job(CONFIGS / "bias_extension.toml", overrides=NAN_JOB), comm,
-                   output=folder)
+                   output=folder, on_start=lambda run: forms.update(
+                       residual=run.problem.residual_form))
 
 
 @pytest.mark.parametrize("where", ["law", "residual"])

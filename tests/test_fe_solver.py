@@ -59,3 +59,28 @@ def test_the_jacobian_is_a_block_matrix_only_under_lu_with_mumps():
     assert jacobian_matrix_type({**direct, "pc_type": "gamg"}) is None
     assert jacobian_matrix_type({**direct, "pc_type": "cholesky"}) is None
     assert jacobian_matrix_type({**direct, "pc_factor_mat_solver_type": "petsc"}) is None
+
+
+def test_run_hooks_see_every_attempt_solve_and_step(comm, shared_tmp):
+    """The hooks benchmarks use instead of patching: on_start once with the run's parts;
+    on_attempt before each Newton attempt, on_solve after it (no holder: one solve each);
+    on_step once per converged step, with the row steps.csv gets. A step cut back counts one
+    attempt more than it has rows."""
+    calls = {"start": [], "attempt": [], "solve": [], "step": []}
+    job = load_job(CONFIGS / "bias_extension.toml", overrides=SHORT)
+    summary = run_job(
+        job, comm, output=shared_tmp / "hooked",
+        on_start=lambda run: calls["start"].append(run),
+        on_attempt=lambda t: calls["attempt"].append(t),
+        on_solve=lambda newton, result: calls["solve"].append(result),
+        on_step=lambda row, problem: calls["step"].append(row))
+    rows = summary.rows[1:]                      # step 0 is the unloaded state, not solved
+    (run,) = calls["start"]
+    assert run.forming is None and run.problem is run.solver.problem
+    assert calls["step"] == rows
+    cutbacks = sum(row["cutbacks"] for row in rows)
+    assert len(calls["attempt"]) == len(rows) + cutbacks == len(calls["solve"])
+    assert [r.converged for r in calls["solve"]].count(True) == len(rows)
+    assert [r.iterations for r in calls["solve"] if r.converged] == [
+        row["newton_iterations"] for row in rows]
+    assert calls["attempt"][-1] == pytest.approx(1.0)

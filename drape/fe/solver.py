@@ -161,15 +161,17 @@ class NewtonSolver:
     """SNES over a :class:`~drape.fe.membrane.MembraneProblem` (prefix ``drape_``)."""
 
     def __init__(self, problem, config, force_scale: float, extra_options: dict | None = None,
-                 interrupted=None):
+                 interrupted=None, on_solve=None):
         """``interrupted()``: this rank's own "stop now" flag (e.g. a signal arrived). The ranks
         combine their flags (an allreduce) before every residual evaluation; when one is set,
         the callback raises on every rank at once, which ends SNES there (not after the line
-        search and the remaining iterations) with the reason "interrupted"."""
+        search and the remaining iterations) with the reason "interrupted". ``on_solve(self,
+        result)`` is called after every solve (a hook for benchmarks and tests)."""
         from petsc4py import PETSc
 
         self.problem = problem
         self.interrupted = interrupted
+        self.on_solve = on_solve
         self.options = default_options(config, force_scale)
         self.options.update({k: _option_text(v) for k, v in config.petsc.items()})
         self.options.update({k: _option_text(v) for k, v in (extra_options or {}).items()})
@@ -242,9 +244,12 @@ class NewtonSolver:
         if nonfinite:
             reason = min(reason, -1)
             name = nonfinite_reason(nonfinite)
-        return SolveResult(reason > 0, self.snes.getIterationNumber(), name, float(residual),
-                           time.perf_counter() - start,
-                           float(history[0]) if len(history) else float(residual))
+        result = SolveResult(reason > 0, self.snes.getIterationNumber(), name, float(residual),
+                             time.perf_counter() - start,
+                             float(history[0]) if len(history) else float(residual))
+        if self.on_solve is not None:
+            self.on_solve(self, result)
+        return result
 
     def close(self) -> None:
         from petsc4py import PETSc
