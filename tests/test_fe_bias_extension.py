@@ -1,7 +1,7 @@
 """configs/bias_extension.toml: a 100 x 50 mm blank, yarns at +-45 deg, left end clamped, right
 end pulled by d. Inextensible yarns give three zones: undeformed next to the clamps, gamma/2
 along the free edges, gamma in the centre with gamma = pi/2 - 2 acos((D + d)/(sqrt 2 D)),
-D = length - width. Also: which meshes lock (docs/fe-solver.md, "Shear locking")."""
+D = length - width. Also: which meshes lock (docs/fe-results.md, "Shear locking")."""
 
 import math
 

@@ -55,7 +55,7 @@ def run_and_terminate(folder, ranks=1):
     finished process's return code and stderr. Under mpirun the ranks get the SIGTERM, as from
     a batch system that signals every process of a job: mpirun itself answers a SIGTERM with
     SIGCONT, a SIGTERM to the ranks only after odls_base_sigkill_timeout (1 s) and SIGKILL 1 s
-    later (docs/fe-solver.md, "Signals")."""
+    later (docs/fe-results.md, "Signals")."""
     process = subprocess.Popen(command("run", CONFIGS / "bias_extension.toml", "--output", folder,
                                        *SHORT, ranks=ranks),
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
