@@ -18,7 +18,7 @@ Builds the tools with their default meshes (docs/tools.md), then times, on N poi
 
 Times are the best of --repeats (wall clock, after one warm-up on 1000 points); "pairs/pt" is
 the number of exact point-triangle projections per point. The machine's load matters: the
-figures in docs/tools.md say on what they were taken.
+figures in docs/contact.md say on what they were taken.
 """
 
 from __future__ import annotations

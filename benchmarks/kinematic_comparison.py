@@ -11,7 +11,7 @@ percentile there and over the FE's top 2 %, and the rank correlation of the two 
 region by region of the flat blank (the saddle, the two ends on the x axis, the corners, the
 middles of the long sides, the domes; mm from the blank's centre, in ZONES), the largest and
 the 90th-percentile shear of the FE and of the kinematic drape. The figures in
-docs/forming.md ("Double dome") were taken with it.
+docs/double-dome.md were taken with it.
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ with φ = Δs_T/δ and Dφ = I/δ (stick), φ = Δs_T/s and Dφ = (I - e⊗e)/s,
 The friction part is not symmetric (the term μ ε_N φ ⊗ n).
 
 The finite-element layer adds ∫ t·δu dA to the external virtual work and
--∫ δu·(dt/du)·du dA to the stiffness. Parameters and the penalty rule: ``docs/tools.md``.
+-∫ δu·(dt/du)·du dA to the stiffness. Parameters and the penalty rule: ``docs/contact.md``.
 """
 
 from __future__ import annotations
@@ -47,11 +47,11 @@ from drape.config import non_negative, positive, setting
 from drape.errors import InputError
 
 #: Default tool-fabric friction coefficient: dry glass or carbon fabric on steel at room
-#: temperature, at the low end of the measured 0.2-0.3 (docs/tools.md, "Friction").
+#: temperature, at the low end of the measured 0.2-0.3 (docs/contact.md, "Friction coefficient").
 DEFAULT_FRICTION = 0.2
 #: Slip (mm) over which friction builds up to μ p.
 DEFAULT_SLIP_REGULARISATION = 0.05
-#: c in ε_N = c K / h² (docs/tools.md, "Penalty").
+#: c in ε_N = c K / h² (docs/contact.md, "Penalty").
 DEFAULT_PENALTY_FACTOR = 1.0
 #: g0 / h of the smoothed penalty (docs/forming.md, "Contact").
 DEFAULT_SMOOTHING_FACTOR = 0.05

@@ -48,7 +48,7 @@ answer is exact to round-off.
 
 The normal is the gradient of the gap with respect to the point (the contact Jacobian relies
 on it), and closest = point - gap * normal. The method and its measured agreement with the
-meshed tools are in ``docs/tools.md`` ("Exact double-dome tools").
+meshed tools are in ``docs/contact.md`` ("Exact double-dome tools").
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ Two implementations:
   result is the exact closest point of the triangulation. Normals are interpolated from vertex
   normals with the barycentric coordinates of the closest point: a continuous normal field.
 
-The method and its accuracy are described in ``docs/tools.md``.
+The method and its accuracy are described in ``docs/contact.md``.
 """
 
 from __future__ import annotations
@@ -418,7 +418,7 @@ def _degenerate_bary(p, a, b, c):
 class MeshedSurface:
     """Exact closest points on a triangulated surface, with interpolated normals.
 
-    Search (vectorised over points; docs/tools.md):
+    Search (vectorised over points; docs/contact.md):
 
     1. a k-d tree on all triangle centroids gives each point its ``k`` nearest centroids; the
        exact point-triangle distance to those triangles is an upper bound d on the distance;

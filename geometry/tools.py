@@ -403,7 +403,7 @@ def analytic_tools(cfg: HemisphereTools) -> dict[str, AxisymmetricSurface]:
 
 def analytic_double_dome_tools(cfg: DoubleDomeTools) -> dict[str, SignedDistanceSurface]:
     """Exact surfaces of the double-dome tools (no meshing): punch, die, holder, each the
-    opening of a sharp-edged core (drape.double_dome; docs/tools.md, "Exact double-dome
+    opening of a sharp-edged core (drape.double_dome; docs/contact.md, "Exact double-dome
     tools"). The die and holder are unbounded outward and the punch has no top face: only the
     working faces are modelled."""
     try:
