@@ -5,7 +5,7 @@ by gmsh/OpenCASCADE in ``_double_dome_shape`` and ``_build_double_dome``) are qu
 without a triangulation: the gap is the exact signed distance to the CAD construction, its
 gradient (the normal) is continuous, and a query costs a few dozen numpy operations per point
 (the triangulated tools of ``drape.tools.MeshedSurface`` give a gap whose gradient jumps from
-facet to facet, and are 50 to 100 times slower). Same interface as the tools of
+facet to facet, and are far slower: docs/contact.md, "Throughput"). Same interface as the tools of
 ``drape.tools``: ``query(points, offset=None, cutoff=None) -> ContactQuery(gap, normal,
 closest)``; ``cutoff`` is ignored (the answer is exact for near points and cheap for all).
 

@@ -52,10 +52,11 @@ ON_DIE_TOLERANCE = 1.0
 SETTLING_DAMPING = 1e-3
 #: a converged step's holder force must be within this fraction of process.holder_force, else
 #: the step is solved again with the holder moved (:meth:`Forming.hold_force`), at most
-#: HOLDER_CORRECTIONS times: with 1 mm steps in the locking stage the force drifted to 7 % over
-#: F between the per-step corrections (docs/forming.md, "Blank holder"). Six, not three: where
-#: the holder comes down from the wrinkles at its rim onto the flat flange the force bends
-#: sharply, and closing in on F inside the bracket takes more moves (most steps need one or two)
+#: HOLDER_CORRECTIONS times: corrections between steps alone let the force drift where the
+#: fabric under the holder thickens, as in the locking stage (docs/forming.md, "Blank holder").
+#: Room for several moves: where the holder comes down from the wrinkles at its rim onto the
+#: flat flange the force bends sharply, and closing in on F inside the bracket can take more
+#: than the one or two moves most steps need
 HOLDER_TOLERANCE = 0.01
 HOLDER_CORRECTIONS = 6
 #: until the force has been seen on both sides of F, the re-solves after the first move the
@@ -64,8 +65,8 @@ HOLDER_CORRECTIONS = 6
 #: small fraction of it (double dome: 0.01-0.1)
 HOLDER_LEAST_SLOPE = 0.005
 #: and at most this: where the holder's rim presses the fabric drawn over the die's fillet the
-#: force grows faster than the target (hemisphere +-45: 1.6-1.8), and a slope kept at 1 made
-#: the moves overshoot by as much as they corrected, back and forth
+#: force grows faster than the target, and a slope bounded by 1 would make the moves overshoot
+#: by about as much as they correct, back and forth
 HOLDER_MOST_SLOPE = 10.0
 #: a converged step whose measured holder force is off process.holder_force by more than this
 #: fraction is a warning in the log (with the step and both forces) and is counted in
@@ -275,7 +276,8 @@ class ToolContact(PointContribution):
             query = surface.query(positions, offset, cutoff=self.cutoff)
             # the slip since the last converged step plus the elastic slip held then: friction
             # with memory, so that a point drawn slowly over a tool reaches mu p whatever the
-            # step size (without it the force fell with the step, 14.4 -> 12.8 N, docs/forming.md)
+            # step size (without it a point drawn by less than the slip regularisation per step
+            # never reaches mu p, and the forces depend on the steps; docs/forming-checks.md)
             slip = (displacements - self.committed_u - (offset - self.committed_offsets[name])
                     + self.elastic_slip[name])
             response = traction(query.gap, query.normal, slip, self.penalty, self.friction,
@@ -328,8 +330,8 @@ class HolderControl:
     pushes the holder elsewhere too (at its rim, or wrinkles rising under it), F' goes below
     F, and below F_min = 1e-3 F the holder keeps lifting, by 2 (F_min - F') / (eps_N A), the
     slope of the plain penalty's branch: a press's cushion lifts as far as the force needs.
-    Without that the double dome's holder stuck 2 g0 above the die carrying up to 777 N of its
-    500 N (docs/forming.md)."""
+    Without the lift the holder would stop 2 g0 above the die, where the smoothed penalty's
+    pressure falls to zero, and could not rise far enough to bring the force down to F."""
 
     GAIN = 0.5
 
