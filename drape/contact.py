@@ -7,7 +7,8 @@ slip Δs of the fabric relative to the tool (a 3-vector: the displacement increm
 current load step minus the tool's rigid motion, plus the elastic slip the point held in the
 stick zone at the last converged step, :func:`elastic_slip`, which
 :class:`drape.forming.ToolContact` keeps: so friction has memory, and a point drawn slowly
-over a tool reaches μ p whatever the step size). :func:`traction` returns the traction t the tool exerts on the fabric (N/mm², per unit reference area), its derivative
+over a tool reaches μ p whatever the step size). :func:`traction` returns the traction t the
+tool exerts on the fabric (N/mm², per unit reference area), its derivative
 dt/du with respect to the fabric displacement (3×3 per point) and the contact pressure.
 
 Normal law (penalty):   p = ε_N ⟨-g⟩,  t_N = p n        (⟨x⟩ = max(x, 0))

@@ -10,7 +10,8 @@ face and the holder's lower face are (``tools.*.gap`` = 0).
 
 * The punch and the die are rigid surfaces (exact for the hemisphere's surfaces of revolution,
   :mod:`drape.tools`, and for the double dome's rolling-ball constructions,
-  :mod:`drape.double_dome`; an exact closest point on the gmsh triangulation of STEP tools) queried at
+  :mod:`drape.double_dome`; an exact closest point on the gmsh triangulation of STEP tools)
+  queried at
   the membrane's quadrature points from their current positions; :func:`drape.contact.traction`
   gives traction and tangent. The punch moves by (0, 0, -stroke * t).
 * The blank holder is a rigid tool too, force-controlled: a membrane has no thickness, so the
@@ -82,7 +83,7 @@ FLAT_COSINE = math.cos(math.radians(1.0))
 PINCH_TOLERANCE = 0.05
 
 
-# --- validation of a forming job -------------------------------------------------------------------
+# --- validation of a forming job ------------------------------------------------------------------
 
 def tool_set(config):
     """The chosen tool dimensions ([tools.hemisphere], [tools.double_dome] or [tools.step])."""
@@ -170,7 +171,8 @@ def check_forming(config) -> None:
         if hx <= opening_x or hy <= opening_y:
             raise InputError("the blank does not cover the die cavity", key=key,
                              value=(2 * hx, 2 * hy),
-                             expected=f"length > {2 * opening_x:g} and width > {2 * opening_y:g} mm")
+                             expected=f"length > {2 * opening_x:g} and "
+                                      f"width > {2 * opening_y:g} mm")
         if hx > dims.die_length / 2 or hy > dims.die_width / 2:
             raise InputError("the blank reaches beyond the die", key=key, value=(2 * hx, 2 * hy),
                              expected=f"length <= {dims.die_length:g} and width <= "
@@ -182,10 +184,11 @@ def check_forming(config) -> None:
             raise InputError("the mesh is too coarse for the tools", key="mesh.size",
                              value=config.mesh.size,
                              expected=f"<= {largest:.3g} mm: two elements over the quarter arc "
-                                      f"of the smallest fillet the fabric wraps (R = {radius:g} mm)")
+                                      "of the smallest fillet the fabric wraps "
+                                      f"(R = {radius:g} mm)")
 
 
-# --- the holder's region ---------------------------------------------------------------------------
+# --- the holder's region --------------------------------------------------------------------------
 
 def pinch_region(holder, die, points, comm, reach: float = ON_DIE_TOLERANCE):
     """STEP tools, whatever their shape: the points (P, 3) of the flat blank that lie between a
@@ -230,7 +233,7 @@ def holder_region(config):
     return None
 
 
-# --- point contributions ---------------------------------------------------------------------------
+# --- point contributions --------------------------------------------------------------------------
 
 class ToolContact(PointContribution):
     """Rigid tools in (smoothed) penalty contact with friction; the tools named in ``moving``
@@ -389,7 +392,7 @@ class _Bracket:
         return t0 + e0 * (t1 - t0) / (e0 - e1)
 
 
-# --- the forming job -------------------------------------------------------------------------------
+# --- the forming job ------------------------------------------------------------------------------
 
 class Forming:
     """Everything a forming job adds to ``drape run``: contributions, measurements, outputs."""
@@ -453,13 +456,14 @@ class Forming:
                f"{self.process.punch_speed:g} m/s after {self.process.punch_ramp:g} mm"
                if self.process.areal_density > 0 else ""))
 
-    # --- wiring ---------------------------------------------------------------------------------------
+    # --- wiring -----------------------------------------------------------------------------------
     def bind(self, problem) -> None:
         """Reference area of each contribution point (mm^2), once the problem exists."""
         import ufl
         from dolfinx import fem
         detJ = fem.Expression(ufl.JacobianDeterminant(problem.mesh), problem.extra_points)
-        areas = np.abs(detJ.eval(problem.cells)).reshape(problem.n_cells, -1) * problem.extra_weights
+        areas = (np.abs(detJ.eval(problem.cells)).reshape(problem.n_cells, -1)
+                 * problem.extra_weights)
         self.problem = problem
         self.areas = areas.ravel()
         self.n_extra = areas.shape[1]
@@ -516,7 +520,7 @@ class Forming:
         if not from_rest:
             p.u_anchor.x.array[:] += dtau / dtau_last * (u1 - u0)
 
-    # --- per step ---------------------------------------------------------------------------------------
+    # --- per step ---------------------------------------------------------------------------------
     def measure(self, t: float, converged: bool = True) -> dict:
         """Forces (N), penetration (mm), contact areas (mm^2) at the converged state (collective).
 
@@ -621,7 +625,7 @@ class Forming:
         A = self.areas.reshape(-1, self.n_extra)
         return (p.reshape(-1, self.n_extra) * A).sum(axis=1) / A.sum(axis=1)
 
-    # --- at the end ---------------------------------------------------------------------------------------
+    # --- at the end -------------------------------------------------------------------------------
     def _holder_summary(self, rows: list) -> dict:
         """summary.json's holder entries: how it was driven, the force it was driven to (force
         control only) and the force measured over the converged steps (never the config's

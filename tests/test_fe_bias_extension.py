@@ -29,7 +29,8 @@ def mean_abs_shear(comm, problem, centre, radius):
 
 
 def run(comm, folder, overrides=()):
-    job = load_job(CONFIGS / "bias_extension.toml", overrides=list(overrides) + ["output.xdmf=false"])
+    job = load_job(CONFIGS / "bias_extension.toml",
+                   overrides=list(overrides) + ["output.xdmf=false"])
     records = []
 
     def on_step(row, problem):
@@ -82,7 +83,8 @@ def test_which_meshes_lock(comm, shared_tmp):
         print(f"\nbias extension at d = {d} mm, kinematic central shear {gamma:.2f} deg")
         print(f"{'mesh':<26}{'centre (deg)':>14}{'force (N)':>12}{'yarn strain':>13}")
         for (cell, pattern), r in results.items():
-            print(f"{pattern + ' ' + cell:<26}{r['centre']:>14.2f}{r['force']:>12.2f}{r['strain']:>13.2e}")
+            print(f"{pattern + ' ' + cell:<26}{r['centre']:>14.2f}{r['force']:>12.2f}"
+                  f"{r['strain']:>13.2e}")
     reference = results["quadrilateral", "aligned"]
     for cell in ("quadrilateral", "triangle"):
         aligned, free = results[cell, "aligned"], results[cell, "free"]

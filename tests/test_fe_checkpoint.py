@@ -156,7 +156,8 @@ def test_sigterm_then_resume_gives_the_uninterrupted_result(tmp_path, ranks):
     other = 2 if ranks == 1 else 1
     wrong = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT, "--resume",
                   ranks=other)
-    assert wrong.returncode == 2 and f"written by {ranks} rank(s), this run has {other}" in wrong.stderr
+    assert (wrong.returncode == 2
+            and f"written by {ranks} rank(s), this run has {other}" in wrong.stderr)
 
     done = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT, "--resume",
                  ranks=ranks)
@@ -214,13 +215,15 @@ def test_results_are_not_overwritten_silently(tmp_path):
         assert again.returncode == 2, again.stderr
         lines = [line for line in again.stderr.splitlines() if line.startswith("drape")]
         assert len(lines) == 1 and "Traceback" not in again.stderr
-        assert "already holds results (checkpoint.npz, fields.xdmf, result.npz, steps.csv)" in lines[0]
+        assert ("already holds results (checkpoint.npz, fields.xdmf, result.npz, steps.csv)"
+                in lines[0])
         assert "--overwrite" in lines[0] and "--resume" in lines[0]
     over = drape(*args, "--overwrite")
     assert over.returncode == 0, over.stderr
     assert len(read_steps(folder)) == 15
     # nothing to resume in an empty folder
-    empty = drape("run", CONFIGS / "bias_extension.toml", "--output", tmp_path / "empty", "--resume")
+    empty = drape("run", CONFIGS / "bias_extension.toml", "--output", tmp_path / "empty",
+                  "--resume")
     assert empty.returncode == 2 and "nothing to resume" in empty.stderr
 
     pf = ["picture-frame", "--cycles", "5", "--increment", "1", "--output", tmp_path / "pf"]
