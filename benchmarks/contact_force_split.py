@@ -9,7 +9,7 @@ OUT and, at every converged step, sums traction x area over the blank's quadratu
 tool: N the normal part (pressure p times the tool's normal), F the friction part (the rest);
 z vertical (up), r radial (outward from the z axis: on the flange, friction resisting the
 draw-in is positive). Prints the last step's sums (N) and writes all of them to
-OUT/contact_force_split.json. The figures in docs/forming.md ("Penalty") were taken with it.
+OUT/contact_force_split.json. The figures in docs/forming-checks.md ("Penalty") were taken with it.
 """
 
 from __future__ import annotations

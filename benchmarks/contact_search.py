@@ -12,13 +12,14 @@ Builds the tools with their default meshes (docs/tools.md), then times, on N poi
     its working position: most points are 10-250 mm away (the first load step), with a 5 mm
     cutoff on N points and exact on --far-points points (exact far queries cost about d / h
     candidates per point: d the distance, h the element size);
-* hemisphere: the punch and the die, analytic (drape.forming.surfaces.AxisymmetricSurface) and meshed,
+* hemisphere: the punch and the die, analytic (drape.forming.surfaces.AxisymmetricSurface) and
+  meshed,
   on points within +-3 mm of their surfaces;
 * the contact law (drape.forming.contact.traction) on N points in contact, half of them slipping.
 
 Times are the best of --repeats (wall clock, after one warm-up on 1000 points); "pairs/pt" is
 the number of exact point-triangle projections per point. The machine's load matters: the
-figures in docs/tools.md say on what they were taken.
+figures in docs/contact.md say on what they were taken.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ instance, how fast the residual falls in the attempts that fail). ``--until MM``
 after its first converged step at or beyond MM (the stroke's first stretch alone; the results
 folder keeps what was written, as after an interruption).
 
-The by-stage figures in docs/benchmarks.md ("Where the full stroke's time goes now, by stage")
+The by-stage figures in docs/benchmarks.md ("Where the full stroke's time goes, by stage")
 were taken with it.
 """
 

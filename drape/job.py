@@ -37,7 +37,8 @@ class BlankConfig:
     width: float = setting(100.0, "rectangle: extent along y", positive, "mm")
     radius: float = setting(50.0, "disc: radius", positive, "mm")
     yarn_angle: float = setting(0.0, "angle theta from x to the warp yarns G1 = (cos, sin); "
-                                "the weft G2 is at theta + 90; from -90 to 90 (every direction: theta + 180 is the "
+                                "the weft G2 is at theta + 90; from -90 to 90 "
+                                "(every direction: theta + 180 is the "
                                 "same yarn)", in_range(-90.0, 90.0), "deg")
 
 
@@ -58,10 +59,12 @@ class StepsConfig:
     """Adaptive load stepping in the load factor t (0 to 1)."""
 
     initial: float = setting(0.01, "first step", in_range(0.0, 1.0, lo_open=True))
-    minimum: float = setting(1e-6, "smallest step before the run fails", in_range(0.0, 1.0, lo_open=True))
+    minimum: float = setting(1e-6, "smallest step before the run fails",
+                             in_range(0.0, 1.0, lo_open=True))
     maximum: float = setting(0.05, "largest step", in_range(0.0, 1.0, lo_open=True))
     growth: float = setting(1.5, "step growth after an easy step", in_range(1.0, 10.0))
-    cutback: float = setting(0.5, "step reduction after a failed step", in_range(0.0, 1.0, lo_open=True, hi_open=True))
+    cutback: float = setting(0.5, "step reduction after a failed step",
+                             in_range(0.0, 1.0, lo_open=True, hi_open=True))
     easy_iterations: int = setting(4, "a step converged in at most this many Newton iterations "
                                    "lets the next one grow", positive)
 
@@ -83,7 +86,8 @@ class SolverConfig:
         "direct", "'direct': LU with MUMPS; 'iterative' (large meshes): GMRES with a field "
         "split, GAMG with the rigid-body near-nullspace in the plane, GAMG out of it")
     max_iterations: int = setting(20, "Newton iterations per step before a cutback", positive)
-    rtol: float = setting(1e-10, "convergence: residual norm relative to the step's first", positive)
+    rtol: float = setting(1e-10, "convergence: residual norm relative to the step's first",
+                          positive)
     atol: float = setting(1e-12, "convergence: absolute residual norm as a fraction of the force "
                           "scale mu*max(K1, K2)*sqrt(blank area)", positive)
     neutral_loading_band: float = setting(
@@ -264,7 +268,8 @@ class JobConfig:
     mesh: MeshConfig = setting(MeshConfig(), "its mesh")
     steps: StepsConfig = setting(StepsConfig(), "load stepping")
     solver: SolverConfig = setting(SolverConfig(), "Newton and linear solver")
-    regularisation: RegularisationConfig = setting(RegularisationConfig(), "flat-membrane regularisation")
+    regularisation: RegularisationConfig = setting(RegularisationConfig(),
+                                                   "flat-membrane regularisation")
     bending: BendingConfig = setting(BendingConfig(), "the fabric's bending rigidity")
     history: dict[str, HistoryConfig] = setting({}, "named piecewise-linear histories of t")
     boundary: tuple[BoundaryConfig, ...] = setting((), "prescribed displacements ([[boundary]])")
@@ -299,7 +304,8 @@ class JobConfig:
         known = BOUNDARY_NAMES[self.blank.shape] + (WHOLE_BOUNDARY,)
         for i, entry in enumerate(self.boundary):
             if entry.on not in known:
-                raise InputError(f"unknown boundary of a {self.blank.shape}", key=f"boundary[{i}].on",
+                raise InputError(f"unknown boundary of a {self.blank.shape}",
+                                 key=f"boundary[{i}].on",
                                  value=entry.on, expected="one of " + ", ".join(known))
         if self.picture_frame is not None:
             if self.picture_frame.angle not in self.history:
@@ -342,7 +348,8 @@ class JobConfig:
             raise InputError(f"too coarse: {extent / self.mesh.size:.2g} elements across the "
                              f"blank", key="mesh.size", value=self.mesh.size,
                              expected=f"at least {MIN_ELEMENTS_ACROSS} elements across the blank: "
-                                      f"mesh.size <= {what} / {MIN_ELEMENTS_ACROSS} = {largest:g} mm")
+                                      f"mesh.size <= {what} / {MIN_ELEMENTS_ACROSS} "
+                                      f"= {largest:g} mm")
 
 
     def _validate_forming(self):
@@ -422,7 +429,8 @@ def load_job(path: str | Path, overrides: list[str] | None = None) -> Job:
         if not material_path.is_file():
             raise InputError("material file not found", source=str(path), key="material",
                              value=config.material,
-                             expected=f"a TOML file relative to {path.parent} (looked for {material_path})")
+                             expected=f"a TOML file relative to {path.parent} "
+                                      f"(looked for {material_path})")
         params = load_material(material_path)
     else:
         params = MaterialParameters()

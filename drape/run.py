@@ -269,7 +269,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         row["bending_energy"] = problem.bending_energy()
         row["max_shear_angle_deg"] = comm.allreduce(local_max, op=MPI.MAX)
         strain = max(float(np.abs(response.S11).max()) / yarn_modulus[0],
-                     float(np.abs(response.S22).max()) / yarn_modulus[1]) if response.tau.size else 0.0
+                     float(np.abs(response.S22).max())
+                     / yarn_modulus[1]) if response.tau.size else 0.0
         row["max_yarn_strain"] = comm.allreduce(strain, op=MPI.MAX)
         tau_sum = comm.allreduce(float(response.tau.sum()))
         tau_count = comm.allreduce(response.tau.size)
@@ -291,7 +292,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             q = motion.conjugate_force(force, t, frame.angle)
             row["frame_force"] = (frame_force.from_conjugate_force(side, angle, q)
                                   if step > 0 else 0.0)
-            row["frame_force_from_tau"] = float(frame_force.closed_form(side, angle, row["tau_mean"]))
+            row["frame_force_from_tau"] = float(frame_force.closed_form(side, angle,
+                                                                        row["tau_mean"]))
             frame_rows.append({"step": step, "t": t, "angle_deg": angle, **{
                 k: row[k] for k in ("frame_force", "frame_force_from_tau", "tau_mean")}})
         if config.bias_extension is not None:
@@ -376,7 +378,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         last = f"t = {rows[-1]['t']:.6g} (step {rows[-1]['step']})"
         if isinstance(failure, Interrupted):
             raise Interrupted(f"{failure} received; stopped after step {rows[-1]['step']} at "
-                              f"t = {rows[-1]['t']:.6g}: results{' and checkpoint' if saved else ''}"
+                              f"t = {rows[-1]['t']:.6g}: "
+                              f"results{' and checkpoint' if saved else ''}"
                               f" up to it are in {folder}") from None
         raise RunFailed(f"{failure}; results up to {last} are in {folder}"
                         f"{' (with a checkpoint)' if saved else ''}"

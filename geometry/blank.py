@@ -55,7 +55,8 @@ def build_blank(gmsh, shape: str, *, length: float = 100.0, width: float = 100.0
     quads = cell == "quadrilateral"
     angle = yarn_angle % 90.0
     if shape == "rectangle":
-        if pattern == "aligned" and (math.isclose(angle, 0.0, abs_tol=1e-9) or math.isclose(angle, 90.0)):
+        if pattern == "aligned" and (math.isclose(angle, 0.0, abs_tol=1e-9)
+                                     or math.isclose(angle, 90.0)):
             names = _rectangle_grid(gmsh, length, width, size, quads)
         elif pattern == "aligned" and math.isclose(angle, 45.0):
             nodes, cells, sides = diamond_lattice(length, width, size)
@@ -63,7 +64,8 @@ def build_blank(gmsh, shape: str, *, length: float = 100.0, width: float = 100.0
                 cells = _split_quads(nodes, cells)
             names = _discrete(gmsh, nodes, cells, sides, quads)
         elif pattern == "aligned":
-            raise InputError("a yarn-aligned mesh of a rectangle needs yarns at a multiple of 45 deg",
+            raise InputError("a yarn-aligned mesh of a rectangle needs yarns at a multiple of "
+                             "45 deg",
                              key="blank.yarn_angle", value=yarn_angle,
                              expected="0, 90, 45 or -45, or mesh.pattern = \"free\" (not aligned: "
                                       "see the locking note in docs/fe-solver.md)")
@@ -196,7 +198,8 @@ def diamond_lattice(length: float, width: float, size: float):
     # the outline exactly, despite the round-off of s/6
     cells = np.array(quads, dtype=np.int64)
     sides = {}
-    for side, axis, value in (("bottom", 1, 0), ("top", 1, 12 * j), ("left", 0, 0), ("right", 0, 12 * i)):
+    for side, axis, value in (("bottom", 1, 0), ("top", 1, 12 * j), ("left", 0, 0),
+                              ("right", 0, 12 * i)):
         on = np.nonzero(key_array[:, axis] == value)[0]
         on = on[np.argsort(key_array[on, 1 - axis])]
         sides[side] = np.column_stack([on[:-1], on[1:]])
@@ -228,7 +231,8 @@ def _discrete(gmsh, nodes, cells, sides, quads):
     curves = {}
     for name, segments in sides.items():
         curve = gmsh.model.addDiscreteEntity(1)
-        gmsh.model.mesh.addElementsByType(curve, _LINE, np.arange(next_tag, next_tag + len(segments)),
+        gmsh.model.mesh.addElementsByType(curve, _LINE,
+                                          np.arange(next_tag, next_tag + len(segments)),
                                           (segments + 1).ravel())
         next_tag += len(segments)
         curves[name] = [curve]

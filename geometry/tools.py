@@ -17,7 +17,8 @@ its default and where it comes from are in ``docs/tools.md``.
 :func:`build_tools` meshes the tools with gmsh and returns one
 :class:`drape.forming.surfaces.TriangleSurface` per tool (closed surface of the tool's solid, vertex
 normals pointing out of it); :func:`analytic_tools` gives the exact
-:class:`drape.forming.surfaces.AxisymmetricSurface` of each hemisphere tool; :func:`write_tool_surfaces`
+:class:`drape.forming.surfaces.AxisymmetricSurface` of each hemisphere tool;
+:func:`write_tool_surfaces`
 writes tool surfaces to a file a user can open (VTK .vtu or gmsh .msh).
 """
 
@@ -403,7 +404,7 @@ def analytic_tools(cfg: HemisphereTools) -> dict[str, AxisymmetricSurface]:
 
 def analytic_double_dome_tools(cfg: DoubleDomeTools) -> dict[str, SignedDistanceSurface]:
     """Exact surfaces of the double-dome tools (no meshing): punch, die, holder, each the
-    opening of a sharp-edged core (drape.forming.double_dome; docs/tools.md, "Exact double-dome
+    opening of a sharp-edged core (drape.forming.double_dome; docs/contact.md, "Exact double-dome
     tools"). The die and holder are unbounded outward and the punch has no top face: only the
     working faces are modelled."""
     try:

@@ -1,4 +1,5 @@
-"""The contact law (drape.forming.contact): penalty normal traction and regularised Coulomb friction.
+"""The contact law (drape.forming.contact): penalty normal traction and regularised Coulomb
+friction.
 
 Tangents against central differences of the traction itself (normal, stick and slip regimes,
 plain and smoothed penalty), Coulomb's bound and direction, continuity at the end of the stick

@@ -1,4 +1,5 @@
-"""The exact double-dome tools (drape.forming.double_dome, geometry.tools.analytic_double_dome_tools).
+"""The exact double-dome tools (drape.forming.double_dome,
+geometry.tools.analytic_double_dome_tools).
 
 Against independent expectations: the closed form of the construction (double_dome_height,
 also for the core eroded by the edge radius), points built at a known distance from the

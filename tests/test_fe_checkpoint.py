@@ -55,7 +55,7 @@ def run_and_terminate(folder, ranks=1):
     finished process's return code and stderr. Under mpirun the ranks get the SIGTERM, as from
     a batch system that signals every process of a job: mpirun itself answers a SIGTERM with
     SIGCONT, a SIGTERM to the ranks only after odls_base_sigkill_timeout (1 s) and SIGKILL 1 s
-    later (docs/fe-solver.md, "Signals")."""
+    later (docs/fe-results.md, "Signals")."""
     process = subprocess.Popen(command("run", CONFIGS / "bias_extension.toml", "--output", folder,
                                        *SHORT, ranks=ranks),
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
@@ -156,7 +156,8 @@ def test_sigterm_then_resume_gives_the_uninterrupted_result(tmp_path, ranks):
     other = 2 if ranks == 1 else 1
     wrong = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT, "--resume",
                   ranks=other)
-    assert wrong.returncode == 2 and f"written by {ranks} rank(s), this run has {other}" in wrong.stderr
+    assert (wrong.returncode == 2
+            and f"written by {ranks} rank(s), this run has {other}" in wrong.stderr)
 
     done = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT, "--resume",
                  ranks=ranks)
@@ -214,13 +215,15 @@ def test_results_are_not_overwritten_silently(tmp_path):
         assert again.returncode == 2, again.stderr
         lines = [line for line in again.stderr.splitlines() if line.startswith("drape")]
         assert len(lines) == 1 and "Traceback" not in again.stderr
-        assert "already holds results (checkpoint.npz, fields.xdmf, result.npz, steps.csv)" in lines[0]
+        assert ("already holds results (checkpoint.npz, fields.xdmf, result.npz, steps.csv)"
+                in lines[0])
         assert "--overwrite" in lines[0] and "--resume" in lines[0]
     over = drape(*args, "--overwrite")
     assert over.returncode == 0, over.stderr
     assert len(read_steps(folder)) == 15
     # nothing to resume in an empty folder
-    empty = drape("run", CONFIGS / "bias_extension.toml", "--output", tmp_path / "empty", "--resume")
+    empty = drape("run", CONFIGS / "bias_extension.toml", "--output", tmp_path / "empty",
+                  "--resume")
     assert empty.returncode == 2 and "nothing to resume" in empty.stderr
 
     pf = ["picture-frame", "--cycles", "5", "--increment", "1", "--output", tmp_path / "pf"]

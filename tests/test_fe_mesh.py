@@ -19,7 +19,8 @@ def _edges(cells):
     return unique, counts
 
 
-@pytest.mark.parametrize("length, width, size", [(100.0, 50.0, 4.5), (150.0, 60.0, 7.0), (50.0, 50.0, 3.0)])
+@pytest.mark.parametrize("length, width, size",
+                         [(100.0, 50.0, 4.5), (150.0, 60.0, 7.0), (50.0, 50.0, 3.0)])
 def test_diamond_lattice_is_conforming_and_fills_the_rectangle(length, width, size):
     nodes, cells, sides = diamond_lattice(length, width, size)
     x, y = nodes[cells, 0], nodes[cells, 1]
@@ -101,9 +102,11 @@ def test_free_meshes_and_the_aligned_disc(comm):
     cells = msh.geometry.dofmap.array.reshape(-1, 4)[:n]
     x = msh.geometry.x[:, :2]
     central = cells[np.all(np.abs((x[cells] @ [math.cos(math.radians(theta + 45)),
-                                                math.sin(math.radians(theta + 45))])) < 10.0, axis=1)
+                                                math.sin(math.radians(theta + 45))])) < 10.0,
+                           axis=1)
                     & np.all(np.abs((x[cells] @ [math.cos(math.radians(theta - 45)),
-                                                  math.sin(math.radians(theta - 45))])) < 10.0, axis=1)]
+                                                  math.sin(math.radians(theta - 45))])) < 10.0,
+                             axis=1)]
     # dolfinx quadrilateral vertices 0 1 / 2 3 (tensor order): edges 0-1, 0-2, 1-3, 2-3
     edges = x[central[:, [1, 2, 3, 3]]] - x[central[:, [0, 0, 1, 2]]]
     angle = np.degrees(np.arctan2(edges[..., 1], edges[..., 0])) % 90.0
@@ -113,7 +116,8 @@ def test_free_meshes_and_the_aligned_disc(comm):
 
 @pytest.mark.parametrize("blank, mesh, key", [
     (BlankConfig(length=100.0, width=50.0, yarn_angle=30.0), MeshConfig(), "blank.yarn_angle"),
-    (BlankConfig(length=100.0 * math.sqrt(2), width=50.0, yarn_angle=45.0), MeshConfig(), "blank.length"),
+    (BlankConfig(length=100.0 * math.sqrt(2), width=50.0, yarn_angle=45.0), MeshConfig(),
+     "blank.length"),
     (BlankConfig(length=1000.0, width=1000.0), MeshConfig(size=0.1), "mesh.size"),
 ])
 def test_meshes_that_cannot_be_built_are_input_errors_on_every_rank(comm, blank, mesh, key):

@@ -9,13 +9,15 @@ from conftest import CONFIGS
 from drape.job import load_job
 from drape.run import run_job
 
-SHORT = ["output.xdmf=false", "history.d.values=[0.0, 3.0]", "steps.initial=0.1", "steps.maximum=0.25"]
+SHORT = ["output.xdmf=false", "history.d.values=[0.0, 3.0]", "steps.initial=0.1",
+         "steps.maximum=0.25"]
 
 
 def test_iterative_solver_matches_the_direct_one(comm, shared_tmp):
     results = {}
     for linear in ("direct", "iterative"):
-        job = load_job(CONFIGS / "bias_extension.toml", overrides=SHORT + [f"solver.linear={linear}"])
+        job = load_job(CONFIGS / "bias_extension.toml",
+                       overrides=SHORT + [f"solver.linear={linear}"])
         summary = run_job(job, comm, output=shared_tmp / linear)
         results[linear] = [(r["t"], r["right_Fx"]) for r in summary.rows]
     direct, iterative = np.array(results["direct"]), np.array(results["iterative"])
@@ -54,7 +56,8 @@ def test_the_jacobian_is_a_block_matrix_only_under_lu_with_mumps():
     from drape.fe.solver import default_options, jacobian_matrix_type
     direct = default_options(SolverConfig(linear="direct"), 1.0)
     assert jacobian_matrix_type(direct) == "baij"
-    assert jacobian_matrix_type({**direct, "ksp_type": "gmres", "snes_lag_preconditioner": "-2"}) == "baij"
+    assert jacobian_matrix_type({**direct, "ksp_type": "gmres",
+                                 "snes_lag_preconditioner": "-2"}) == "baij"
     assert jacobian_matrix_type(default_options(SolverConfig(linear="iterative"), 1.0)) is None
     assert jacobian_matrix_type({**direct, "pc_type": "gamg"}) is None
     assert jacobian_matrix_type({**direct, "pc_type": "cholesky"}) is None

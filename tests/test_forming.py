@@ -247,7 +247,8 @@ def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_
     """The hemisphere configs stiffen Newton's shear tangent (towards the elastic one) at law
     points loaded only just past their elastic range (solver.neutral_loading_band,
     drape.fe.membrane.neutral_loading_tangent). Only the Jacobian changes, so on the same load
-    steps (5 mm in fixed 0.5 mm steps), both converged to 1e-10, the run with the band and the one with the consistent tangent
+    steps (5 mm in fixed 0.5 mm steps), both converged to 1e-10, the run with the band and the
+    one with the consistent tangent
     everywhere must reach the same state: every step's forces within 1e-6 of the holder force
     and the shear field within 1e-6 of its peak. And the band must have acted: at the last
     step some points carry the stiffened tangent, sqrt(2 mu Ksh * consistent)."""
@@ -265,7 +266,8 @@ def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_
             stiffened["points"] = int(changed.sum())
             stiffened["plastic"] = bool(np.all(p.response.active_surface[changed] >= 0))
             stiffened["error"] = float(np.max(np.abs(
-                used[changed] / np.sqrt(p.law.two_mu_ksh * consistent[changed]) - 1.0), initial=0.0))
+                used[changed] / np.sqrt(p.law.two_mu_ksh * consistent[changed]) - 1.0),
+                initial=0.0))
 
     from mpi4py import MPI
     job, band = run("hemisphere.toml", shared_tmp / "band", fixed, on_step=look)
@@ -356,7 +358,8 @@ def test_hemisphere_45_square_has_the_0_90_symmetry_turned(tmp_path):
 
 
 class FlatDie:
-    """The plane z = 0, material below: gap z, normal +z (drape.forming.surfaces' query interface)."""
+    """The plane z = 0, material below: gap z, normal +z (drape.forming.surfaces' query
+    interface)."""
 
     name = "die"
 

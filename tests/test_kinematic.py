@@ -1,4 +1,5 @@
-"""Kinematic draping (drape.forming.kinematic, the fishnet): no shear on developable moulds (a plane, a
+"""Kinematic draping (drape.forming.kinematic, the fishnet): no shear on developable moulds (a
+plane, a
 cylinder, yarns along it or at 45 deg to it: they unroll without shear), the square's symmetry
 and the diagonal lobes on a sphere, and the double dome's shear where the finite-element runs
 put it (docs/forming.md compares them at full stroke)."""

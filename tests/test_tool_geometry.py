@@ -17,7 +17,7 @@ from drape.config import from_mapping
 from drape.errors import InputError
 from drape.geometry.tools import (DoubleDomeTools, HemisphereTools, StepTool, StepTools,
                                   ToolMeshing, ToolsConfig, analytic_tools, build_tools,
-                                  check_step_file, double_dome_height, hemisphere_profiles,
+                                  double_dome_height, hemisphere_profiles,
                                   load_tools_config, write_tool_surfaces)
 from drape.forming.surfaces import MeshedSurface
 from tool_helpers import chord_bound

@@ -46,7 +46,8 @@ class PrescribedMotion:
                 formula = entry.components[i]
                 if formula is None:
                     continue
-                dofs_V, dofs_Vi = fem.locate_dofs_topological((V.sub(i), Vi), 1, facets[entry.boundary])
+                dofs_V, dofs_Vi = fem.locate_dofs_topological((V.sub(i), Vi), 1,
+                                                              facets[entry.boundary])
                 keep = ~np.isin(dofs_V, claimed)
                 dofs_V, dofs_Vi = dofs_V[keep], dofs_Vi[keep]
                 claimed = np.concatenate([claimed, dofs_V])

@@ -64,8 +64,8 @@ def jacobian_matrix_type(options: dict[str, str]) -> str | None:
     pair of nodes) under LU with MUMPS, else None (DOLFINx's AIJ).
 
     The bending hinges' interior-facet form inserts 24x24 values per edge, which AIJ looks up
-    one by one: on a 10 000-cell blank (2 ranks) the hinges' Jacobian assembled in 0.21 s with
-    AIJ and 0.09 s with BAIJ (docs/benchmarks.md). Other preconditioners keep AIJ: the field split
+    one by one, while BAIJ inserts a 3x3 block at a time: the hinges' assembly costs about half
+    (docs/fe-solver.md, "Solver and PETSc options"). Other preconditioners keep AIJ: the field split
     takes the x, y and z components apart, through the blocks, and GAMG, or MUMPS's Cholesky,
     refuse BAIJ."""
     direct = (options.get("pc_type") == "lu"

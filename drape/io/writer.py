@@ -68,7 +68,7 @@ class ResultsWriter:
                 raise
         self.remember_fields()
 
-    # --- per step -----------------------------------------------------------------------------------
+    # --- per step ---------------------------------------------------------------------------------
     def write_step(self, row: dict, t: float, *, last: bool = False) -> None:
         """Append the CSV row; write the fields if due (every ``xdmf_every`` steps, and the last).
         If the fields fail (a full disk), the row is cut off again."""
@@ -206,7 +206,8 @@ def gather_sorted(problem) -> dict[str, np.ndarray] | None:
     point_order = _coordinate_order(points)
     return {"node_xy": nodes[node_order], "u": u[node_order],
             "point_xy": points[point_order], "tau": point_values[point_order, 0],
-            "gamma_p_deg": point_values[point_order, 1], "gamma_t_deg": point_values[point_order, 2],
+            "gamma_p_deg": point_values[point_order, 1],
+            "gamma_t_deg": point_values[point_order, 2],
             "dtau_dC12": point_values[point_order, 3]}
 
 
