@@ -31,6 +31,11 @@ COPY . /opt/drape/src
 RUN DRAPE_VENV=/opt/drape/venv DRAPE_EDITABLE=0 /opt/drape/src/scripts/install.sh \
     && rm -rf /var/lib/apt/lists/* /root/.cache/pip
 
+# numba's cache of the law's kernel is keyed by its source files' mtimes, which an image layer
+# rounds to the second: compile it again on top of the installed layer, or every container
+# compiles it at its first job (about 25 s).
+RUN cd / && python -c "import drape.law.kernel as k; k.warm_up()"
+
 VOLUME /results
 WORKDIR /results
 ENTRYPOINT ["/opt/drape/venv/bin/drape"]

@@ -74,6 +74,17 @@ POLICY_RC_D = "#!/bin/sh\nexit 101\n"
 # into /results/run (see test below, "FE job").
 FE_JOB: list[str] | None = None
 
+#: the image's numba cache must hold the law's kernel (else each container compiles it)
+NUMBA_CHECK = """
+import numba
+import drape.law.kernel as k
+k.warm_up()
+dispatchers = [d for d in vars(k).values() if isinstance(d, numba.core.registry.CPUDispatcher)]
+hits = sum(sum(d.stats.cache_hits.values()) for d in dispatchers)
+misses = sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
+print(f"numba cache of the law's kernel: {hits} hits, {misses} misses", flush=True)
+"""
+
 MPI_PROGRAM = """
 from mpi4py import MPI
 import dolfinx.mesh
@@ -323,6 +334,12 @@ def test_dockerfile_builds_with_buildah_and_runs_drape(tmp_path):
                       entrypoint="/opt/drape/venv/bin/python")
         assert "/opt/drape/venv/lib/python3.11/site-packages/drape/__init__.py" in \
             log.read_text().split("$ ")[-1]
+
+        # the law's kernel is loaded from numba's cache in the image, not compiled again
+        (results / "numba_check.py").write_text(NUMBA_CHECK)
+        container.run(["/results/numba_check.py"], {"/results": results}, entrypoint="python")
+        cache = re.search(r"(\d+) hits, (\d+) misses", log.read_text().split("$ ")[-1])
+        assert cache and int(cache[1]) > 0 and int(cache[2]) == 0, log.read_text()[-2000:]
 
         # `docker run --rm -v results:/results drape picture-frame ...`
         t = time.perf_counter()
