@@ -9,21 +9,22 @@ Debian's buildah (1.28), the image builder of podman, and runs what `docker run`
   without a registry;
 * ``buildah bud --isolation chroot --pull-never --layers`` of the Dockerfile;
 * in the image (``buildah run --isolation chroot``, with the image's entry point, command,
-  environment and working directory, a host folder at the /results volume):
-  ``drape picture-frame --cycles 10,-10 --increment 1 --output /results/pf``, whose CSV must equal
-  the same job run on the host; ``drape --help`` (the default CMD); ``mpirun -n 2`` of a small
-  dolfinx/mpi4py program (a mesh distributed over 2 ranks);
+  environment and working directory, a host folder at the /results volume): the law's kernel
+  loads from numba's cache; ``drape picture-frame --cycles 10,-10 --increment 1 --output
+  /results/pf``, whose CSV must equal the same job run on the host; ``drape --help`` (the default
+  CMD); ``mpirun -n 2`` of a small dolfinx/mpi4py program (a mesh distributed over 2 ranks);
 * ``buildah push`` to a docker-archive, ``build/container/drape.tar``, that ``docker load`` takes;
   its manifest.json, repositories, image config and layer digests are checked.
 
 Cached between runs under build/container/ (git-ignored): the debootstrap'ed base as a tarball,
 buildah's storage (the imported base, keyed by a hash of the tarball and of what is added to it,
 and the image's layers: buildah's layer cache reuses a step only when the instruction, the parent
-layer and, for COPY, the digest of the copied files are the same) and the exported archive
-(rewritten when the image's ID changes). A fresh machine (CI) builds all from nothing;
-DRAPE_CONTAINER_NO_CACHE=1 rebuilds every layer. Needs root, debootstrap and buildah (installed
-with apt if missing) and the Debian mirror. DRAPE_DEBIAN_MIRROR overrides
-http://deb.debian.org/debian. Takes minutes from nothing: marked slow and serial.
+layer and, for COPY, the digest of the copied files are the same; earlier builds' layers that no
+tagged image uses are pruned) and the exported archive (rewritten when the image's ID changes).
+A fresh machine (CI) builds all from nothing; DRAPE_CONTAINER_NO_CACHE=1 rebuilds every layer.
+Needs root, debootstrap and buildah (installed with apt if missing) and the Debian mirror.
+DRAPE_DEBIAN_MIRROR overrides http://deb.debian.org/debian. Takes minutes from nothing (15 on the
+loaded 2-core machine; 30 s when nothing changed, docs/container.md): marked slow and serial.
 """
 
 from __future__ import annotations
@@ -318,6 +319,8 @@ def test_dockerfile_builds_with_buildah_and_runs_drape(tmp_path):
                           "--tag", IMAGE, "--file", str(REPO / "Dockerfile"), str(REPO)], log)
         # buildah 1.28 can leave a step's working container (and its mount) behind
         remove_containers()
+        # the layers of earlier builds that no tagged image uses (the cache keeps the current ones)
+        logged(BUILDAH + ["rmi", "--prune"], log)
         timings["buildah bud (cached layers reused)"] = time.perf_counter() - t
         config = image_config(IMAGE)
         image = config["config"]
