@@ -4,10 +4,10 @@
 #   docker build -t drape .
 #   docker run --rm -v "$PWD/results:/results" drape picture-frame --output /results/pf
 #
-# No Docker engine runs on the project's machines: tests/test_container.py proves this recipe by
-# running these very instructions in a debootstrap'ed minimal bookworm root (chroot), then a
-# drape job and an mpirun job in it. It understands FROM, ENV, COPY, RUN, VOLUME, WORKDIR,
-# ENTRYPOINT and CMD; teach it any other instruction before using one here.
+# No Docker engine runs on the project's machines: tests/test_container.py builds this file with
+# Debian's buildah (`buildah bud --isolation chroot`) on a debootstrap'ed bookworm imported as
+# debian:bookworm, runs a drape job and an mpirun job in the image and exports it as a
+# docker-archive (docs/container.md). Keep to plain Dockerfile syntax that docker builds too.
 FROM debian:bookworm
 
 # Open MPI refuses to run as root unless told; containers are small, so allow more ranks than
@@ -19,11 +19,22 @@ ENV LANG=C.UTF-8 \
     OMPI_MCA_btl_vader_single_copy_mechanism=none \
     PATH=/opt/drape/venv/bin:/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
 
+# Debian's packages first, from install.sh alone: this layer is rebuilt only when install.sh
+# changes, not at every change of the source (the packages are most of the build's time).
+COPY scripts/install.sh /opt/drape/src/scripts/install.sh
+RUN DRAPE_APT_ONLY=1 /opt/drape/src/scripts/install.sh && rm -rf /var/lib/apt/lists/*
+
 # The source stays in the image (configs/, docs/); drape is installed into its own venv, not
-# editable, so that the image does not depend on the source tree's state.
+# editable, so that the image does not depend on the source tree's state. install.sh finds the
+# packages installed and goes on to the venv.
 COPY . /opt/drape/src
-RUN DRAPE_VENV=/opt/drape/venv DRAPE_EDITABLE=0 /opt/drape/src/scripts/install.sh \
+RUN DRAPE_VENV=/opt/drape/venv DRAPE_EDITABLE=0 DRAPE_LINT=0 /opt/drape/src/scripts/install.sh \
     && rm -rf /var/lib/apt/lists/* /root/.cache/pip
+
+# numba's cache of the law's kernel is keyed by its source files' mtimes, which an image layer
+# rounds to the second: compile it again on top of the installed layer, or every container
+# compiles it at its first job (about 25 s).
+RUN cd / && python -c "import drape.law.kernel as k; k.warm_up()"
 
 VOLUME /results
 WORKDIR /results

@@ -12,6 +12,7 @@
 #
 # Environment: DRAPE_VENV (default: <repo>/.venv), DRAPE_EDITABLE=0 for a plain install,
 # DRAPE_LINT=0 to leave the linter out (an image that only runs jobs),
+# DRAPE_APT_ONLY=1 to stop after the Debian packages (the Dockerfile's first, cached layer),
 # DRAPE_PARAVIEW=1 to add Debian's ParaView 5.11 and Xvfb for `drape view` (138 packages, about 800 MB
 # more, so not by default; tests/test_paraview.py installs them itself when missing).
 set -euo pipefail
@@ -52,6 +53,7 @@ if ((${#missing[@]})); then
   "${sudo[@]}" apt-get update -q
   "${sudo[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends "${missing[@]}"
 fi
+[ "${DRAPE_APT_ONLY:-0}" = 1 ] && exit 0
 
 if [ ! -x "$venv/bin/python" ]; then
   echo "drape install: creating $venv (sees Debian's packages)"
