@@ -381,6 +381,26 @@ class MembraneProblem:
         from dolfinx.fem import petsc as fpetsc
         return fpetsc.create_matrix(self.jacobian_form, mat_type)
 
+    # --- what a step's caller sets before Newton ------------------------------------------------
+    def set_initial_guess(self, u_values) -> None:
+        """Newton's starting displacement (this rank's unrolled dof values, ghosts included)."""
+        self.u.x.array[:] = u_values
+
+    def set_damping(self, constant: float) -> None:
+        """The out-of-plane damping constant of this step (N/mm^3, 0: none)."""
+        self.damping_constant.value = constant
+
+    @property
+    def inertial(self) -> bool:
+        """Whether the problem has the inertial term (built with ``inertia=True``)."""
+        return self.u_anchor is not None
+
+    def set_inertia(self, k_m: float, anchor) -> None:
+        """The inertial term of this step, k_m (u - anchor) per unit area: k_m in N/mm^3,
+        ``anchor`` this rank's unrolled dof values of the motion carried on."""
+        self.inertia_constant.value = k_m
+        self.u_anchor.x.array[:] = anchor
+
     # --- steps ------------------------------------------------------------------------------------
     def commit(self, t: float | None = None) -> None:
         """Make the converged step (at load factor t) the committed state (law, displacement,

@@ -41,9 +41,17 @@ from pathlib import Path
 
 import numpy as np
 
-from drape.forming.contact import elastic_slip, gap_for_pressure, traction
 from drape.errors import InputError
+from drape.fe.job_part import JobPart
 from drape.fe.membrane import PointContribution
+from drape.forming.contact import elastic_slip, gap_for_pressure, traction
+
+# added to a quasi-static forming run's failure: where the steps shrink as the blank wrinkles
+# or snaps into a clearance, inertia carried the runs of docs/forming.md through
+INERTIA_HINT = ("; if the steps shrank where the blank wrinkles or is drawn into a narrow "
+                "clearance, the blank's inertia may carry it through: set process.areal_density "
+                "(kg/m^2, e.g. 1) and process.punch_speed (m/s, e.g. 3); docs/forming.md, "
+                "'Inertia'")
 
 FORCE_STROKE_FILE = "force_stroke.csv"
 SUMMARY_FILE = "summary.json"
@@ -398,8 +406,11 @@ class _Bracket:
 
 # --- the forming job ------------------------------------------------------------------------------
 
-class Forming:
+class Forming(JobPart):
     """Everything a forming job adds to ``drape run``: contributions, measurements, outputs."""
+
+    files = "force_stroke.csv/.png, the shear maps and summary.json"
+    finish_on_root = False
 
     def __init__(self, job, comm, log=None):
         from drape.geometry.tools import (analytic_double_dome_tools, analytic_tools,
@@ -442,6 +453,9 @@ class Forming:
                                         contact.friction, contact.slip_regularisation,
                                         self.process.contact_cutoff, self.smoothing)
         self.contributions = [self.tool_contact]
+        self.cell_fields = {"contact_pressure": self.contact_pressure}
+        #: a static run that stops may get further with the blank's inertia
+        self.failure_hint = INERTIA_HINT if self.process.areal_density == 0 else ""
         #: force control of the holder (None: no holder, or a position-controlled STEP one)
         self.holder = None
         self._holder_force_controlled = self.holder_mode == "force" and "holder" in surfaces
@@ -461,7 +475,7 @@ class Forming:
                if self.process.areal_density > 0 else ""))
 
     # --- wiring -----------------------------------------------------------------------------------
-    def bind(self, problem) -> None:
+    def bind(self, problem, motion=None) -> None:
         """Reference area of each contribution point (mm^2), once the problem exists."""
         import ufl
         from dolfinx import fem
@@ -506,26 +520,45 @@ class Forming:
         p = self.problem
         t1, t0 = p.t_committed, p.t_previous
         first = t1 == 0.0 and p.damping == 0.0
-        p.damping_constant.value = SETTLING_DAMPING if first else p.damping
+        p.set_damping(SETTLING_DAMPING if first else p.damping)
         moving = t0 is not None and t1 > t0
         if moving:
             u1, u0 = p.u_committed.x.array, p.u_previous.x.array
-            p.u.x.array[:] = u1 + (t - t1) / (t1 - t0) * (u1 - u0)
-        if p.u_anchor is None:
+            p.set_initial_guess(u1 + (t - t1) / (t1 - t0) * (u1 - u0))
+        if not p.inertial:
             return
         from_rest = not moving or t0 == 0.0
         time = self.process.punch_time
         tau1 = time(self.stroke * t1)
         dtau = time(self.stroke * t) - tau1
         dtau_last = dtau if from_rest else tau1 - time(self.stroke * t0)
-        p.inertia_constant.value = (0.0 if t1 == 0.0 else
-                                    2e-9 * self.process.areal_density / (dtau * (dtau + dtau_last)))
-        p.u_anchor.x.array[:] = p.u_committed.x.array
+        k_m = (0.0 if t1 == 0.0 else
+               2e-9 * self.process.areal_density / (dtau * (dtau + dtau_last)))
+        anchor = p.u_committed.x.array.copy()
         if not from_rest:
-            p.u_anchor.x.array[:] += dtau / dtau_last * (u1 - u0)
+            anchor += dtau / dtau_last * (u1 - u0)
+        p.set_inertia(k_m, anchor)
 
     # --- per step ---------------------------------------------------------------------------------
-    def measure(self, t: float, converged: bool = True) -> dict:
+    def resolve(self, t: float, solve, result):
+        """The holder's force within its tolerance: :meth:`hold_force`."""
+        return self.hold_force(t, solve, result)
+
+    def measure(self, row: dict, rows: list, force) -> None:
+        """A converged step's forming columns: the tools' forces and contact (:meth:`tool_row`),
+        the holder's correction for the next step, the punch's work (trapezoidal in the stroke),
+        which is the forming job's external work, and the shares of it."""
+        row.update(self.tool_row(row["t"], converged=row["step"] > 0))
+        self.control_holder(row)
+        before = rows[-1] if rows else {"punch_work": 0.0, "punch_force": 0.0, "stroke": 0.0}
+        row["punch_work"] = before["punch_work"] + 0.5 * (
+            before["punch_force"] + row["punch_force"]) * (row["stroke"] - before["stroke"])
+        row["external_work"] += row["punch_work"]
+        work = abs(row["external_work"])
+        row["regularisation_share"] = row["regularisation_work"] / work if work != 0.0 else 0.0
+        row["bending_share"] = row["bending_energy"] / work if work != 0.0 else 0.0
+
+    def tool_row(self, t: float, converged: bool = True) -> dict:
         """Forces (N), penetration (mm), contact areas (mm^2) at the converged state (collective).
 
         ``converged`` False (step 0, the flat blank as meshed): every force and area is 0. The

@@ -80,10 +80,10 @@ def differences(saved: dict, now: dict) -> list[str]:
 
 
 class Checkpoints:
-    """Writes and reads the checkpoint of a run. ``rows``, ``frame_rows`` and ``ledger`` are
+    """Writes and reads the checkpoint of a run. ``rows`` and ``ledger`` are
     run_job's own (mutable) records: saved as they are, filled in place on resume."""
 
-    def __init__(self, folder, problem, job, every: int, rows: list, frame_rows: list,
+    def __init__(self, folder, problem, job, every: int, rows: list,
                  ledger: dict, prescribed_dofs=()):
         self.folder = Path(folder)
         self.layout = Layout(problem)
@@ -94,7 +94,7 @@ class Checkpoints:
         self.comm = problem.comm
         self.every = every
         self.signature = signature(job)
-        self.rows, self.frame_rows, self.ledger = rows, frame_rows, ledger
+        self.rows, self.ledger = rows, ledger
         self.last = None          # the last accepted solver Step
         self.saved_step = None    # number of the step in the file
         self.disk = None          # a drape.io.disk.Disk: the ranks agree on write errors
@@ -131,7 +131,7 @@ class Checkpoints:
                     "t_committed": p.t_committed, "t_previous": p.t_previous,
                     "external_work": self.ledger["external"],
                     "regularisation_work": self.ledger["regularisation"],
-                    "rows": self.rows, "frame_rows": self.frame_rows,
+                    "rows": self.rows,
                     "signature": self.signature}
             arrays = {"meta": np.array(json.dumps(meta, default=_json_default))}
             arrays.update(_merge(parts))
@@ -279,7 +279,6 @@ class Checkpoints:
         self.ledger.update(external=meta["external_work"],
                            regularisation=meta["regularisation_work"], f=ledger_f, g=ledger_g)
         self.rows[:] = meta["rows"]
-        self.frame_rows[:] = meta["frame_rows"]
         self.saved_step = meta["step"]
         return meta["step"], meta["t"], meta["dt"]
 

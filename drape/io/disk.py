@@ -58,16 +58,17 @@ def size(n: float | None) -> str:
     return f"{int(n)} B"
 
 
-def estimate(problem, config, forming: bool) -> dict[str, float]:
-    """Bytes a run writes: per written step (fields and a steps.csv row), per checkpoint
+def estimate(problem, config, extra_cell_fields: int = 0) -> dict[str, float]:
+    """Bytes a run writes: per written step (fields, ``extra_cell_fields`` beside the usual
+    ones, and a steps.csv row), per checkpoint
     (without its copy of fields.h5), and the whole run's need (its least number of steps,
     1 / steps.maximum, with fields.h5 twice: the checkpoints keep a copy of it)."""
     nodes = problem.V.dofmap.index_map.size_global
     cells = problem.mesh.topology.index_map(2).size_global
     points = cells * problem.nq
     extra = cells * len(problem.extra_weights) * len(problem.contributions)
-    n_fields = 10 if forming else 9
-    fields = 8 * (3 * nodes + (14 if forming else 13) * cells) + n_fields * 1600
+    n_fields = 9 + extra_cell_fields
+    fields = 8 * (3 * nodes + (13 + extra_cell_fields) * cells) + n_fields * 1600
     fields *= config.output.xdmf
     row = 1000
     per_step = fields / config.output.xdmf_every + row

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from drape.fe.job_part import JobPart
+
 FILE_STEM = "bias_extension"
 COLUMNS = ("step", "t", "displacement_mm", "time_s", "force_N", "central_shear_deg",
            "kinematic_shear_deg")
@@ -58,6 +60,25 @@ def measure(config, comm, problem, row: dict) -> dict:
             "central_shear_deg": central_shear(comm, problem,
                                                (blank.length / 2, blank.width / 2), radius),
             "kinematic_shear_deg": float(kinematic_deg(blank.length, blank.width, abs(d)))}
+
+
+class BiasExtensionReport(JobPart):
+    """A bias-extension job (``[bias_extension]``): the report's columns of every converged
+    step (:func:`measure`) and bias_extension.csv/.png at the end."""
+
+    files = "bias_extension.csv/.png"
+
+    def __init__(self, config, comm):
+        self.config, self.comm = config, comm
+
+    def bind(self, problem, motion) -> None:
+        self.problem = problem
+
+    def measure(self, row: dict, rows: list, force) -> None:
+        row.update(measure(self.config, self.comm, self.problem, row))
+
+    def finish(self, folder: Path, rows: list, seconds: float) -> None:
+        write(folder, rows, self.config.title)
 
 
 def write(folder: Path, rows: list[dict], title: str = "") -> None:

@@ -24,8 +24,35 @@ from pathlib import Path
 import numpy as np
 
 from drape import picture_frame
+from drape.fe.job_part import JobPart
 
 FILE_STEM = "frame_force"
+#: the report's columns in steps.csv
+COLUMNS = ("frame_force", "frame_force_from_tau", "tau_mean")
+
+
+class FrameForceReport(JobPart):
+    """A picture-frame job (``[picture_frame]``): the frame force of every converged step,
+    measured from the boundary's conjugate force and in closed form from the mean tau."""
+
+    files = "frame_force.csv/.png"
+
+    def __init__(self, config):
+        self.side = config.blank.length
+        self.angle = config.picture_frame.angle       # the history that is the frame angle
+
+    def bind(self, problem, motion) -> None:
+        self.motion = motion
+
+    def measure(self, row: dict, rows: list, force) -> None:
+        angle = row[self.angle]
+        q = self.motion.conjugate_force(force, row["t"], self.angle)
+        row["frame_force"] = from_conjugate_force(self.side, angle, q) if row["step"] > 0 else 0.0
+        row["frame_force_from_tau"] = float(closed_form(self.side, angle, row["tau_mean"]))
+
+    def finish(self, folder: Path, rows: list, seconds: float) -> None:
+        write(folder, self.side, [{"step": r["step"], "t": r["t"], "angle_deg": r[self.angle],
+                                   **{k: r[k] for k in COLUMNS}} for r in rows])
 
 
 def corner_distance_rate(side: float, angle_deg: float) -> float:

@@ -1,0 +1,352 @@
+"""The step loop of ``drape run``: one job, meshed and set up, solved in adaptive load steps,
+each converged step recorded, written and checkpointed.
+
+The loop knows the membrane problem, the boundary motion and the writers; what a kind of job
+adds (the forming process, a picture frame's or a bias extension's report) comes in as
+:class:`~drape.fe.job_part.JobPart` objects, which the loop calls at fixed points: bind, set
+the load, predict, re-solve, measure, finish. Hooks (``on_start``, ``on_attempt``,
+``on_solve``, ``on_step``) let progress displays, benchmarks and tests look in.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: what a run writes in its folder (drape.io.folder.claim refuses to overwrite them silently)
+RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
+#: removed with them by --overwrite
+ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "checkpoint.h5",
+                "frame_force.csv", "frame_force.png", "bias_extension.csv", "bias_extension.png")
+FREE_MESH_WARNING = (
+    "drape run: warning: mesh.pattern = \"free\": element edges do not follow the yarns; "
+    "with stiff yarns such meshes lock in tension (too stiff, yarns stretched: watch "
+    "max_yarn_strain in steps.csv). mesh.pattern = \"aligned\" avoids it; see "
+    "docs/fe-results.md")
+
+
+@dataclasses.dataclass
+class Hooks:
+    """Callbacks into a run, each optional, called on every rank."""
+    on_start: object = None     #: on_start(RunParts) once the run is set up
+    on_attempt: object = None   #: on_attempt(t) before each Newton attempt at load factor t
+    on_solve: object = None     #: on_solve(solver, result) after each Newton solve
+    on_step: object = None      #: on_step(row, problem) after a converged step is written
+
+
+@dataclasses.dataclass
+class RunParts:
+    """What a run is made of, handed to the ``on_start`` hook (benchmarks and tests read it;
+    the run owns it)."""
+    job: object
+    problem: object      #: drape.fe.membrane.MembraneProblem
+    solver: object       #: drape.fe.solver.NewtonSolver
+    motion: object       #: drape.fe.constraints.PrescribedMotion
+    parts: list          #: the job's parts (drape.fe.job_part.JobPart)
+
+    @property
+    def forming(self):
+        """The forming process (drape.forming.press.Forming), or None for a flat job."""
+        from drape.forming.press import Forming
+        return next((part for part in self.parts if isinstance(part, Forming)), None)
+
+
+@dataclasses.dataclass
+class RunSummary:
+    steps: int
+    t: float
+    seconds: float
+    folder: Path
+    rows: list
+    timings: dict
+
+
+def job_parts(job, comm, log) -> list:
+    """The parts the job's config asks for, in the order they add their columns."""
+    from drape.reports.bias_extension import BiasExtensionReport
+    from drape.reports.frame_force import FrameForceReport
+    config = job.config
+    parts = []
+    if config.process is not None:
+        from drape.forming.press import Forming
+        parts.append(Forming(job, comm, log=log))
+    if config.picture_frame is not None:
+        parts.append(FrameForceReport(config))
+    if config.bias_extension is not None:
+        parts.append(BiasExtensionReport(config, comm))
+    return parts
+
+
+class StepLoop:
+    """One run of a job in its results folder (collective over ``comm``)."""
+
+    def __init__(self, job, comm, folder: Path, *, petsc_options=None, log=None,
+                 jit_params=None, resume=False, hooks: Hooks | None = None):
+        from drape.errors import InputError
+        from drape.fe.constraints import PrescribedMotion
+        from drape.fe.loading import Loading
+        from drape.fe.membrane import MembraneProblem
+        from drape.fe.mesh import create_blank_mesh
+        from drape.fe.solver import NewtonSolver
+        from drape.io.interrupt import StopRequest
+        from drape.law.nested_surface import NestedSurfaceLaw
+
+        self.started = time.perf_counter()
+        self.job, self.comm, self.folder = job, comm, folder
+        self.hooks = hooks or Hooks()
+        self.say = say = log or (lambda *_: None)
+        config = self.config = job.config
+        forming = config.process is not None
+        self.parts = job_parts(job, comm, say)
+        try:
+            blank_mesh = create_blank_mesh(comm, config.blank, config.mesh, centred=forming)
+        except InputError as error:  # the mesher names the key; the job file is ours to add
+            raise error.located(str(job.path)) from None
+        say(f"drape run: {job.path}: {blank_mesh.description}, {comm.size} rank(s)")
+        self.loading = Loading.from_config(config, source=str(job.path))
+        contributions = [c for part in self.parts for c in part.contributions]
+        self.problem = problem = MembraneProblem(
+            blank_mesh, NestedSurfaceLaw(job.params), config.blank.yarn_angle,
+            config.regularisation.out_of_plane_damping, contributions=contributions or None,
+            jit_params=jit_params, bending_rigidity=config.bending.value(forming),
+            inertia=forming and config.process.areal_density > 0,
+            neutral_loading_band=config.solver.neutral_loading_band)
+        self.motion = PrescribedMotion(problem.V, blank_mesh, self.loading)
+        for part in self.parts:
+            part.bind(problem, self.motion)
+        problem.bcs = self.motion.bcs
+        area = comm.allreduce(problem.cell_areas.sum())
+        force_scale = job.params.mu * max(job.params.K1, job.params.K2) * math.sqrt(area)
+        self.stop = StopRequest()
+        self.solver = NewtonSolver(problem, config.solver, force_scale, petsc_options,
+                                   interrupted=lambda: bool(self.stop.signal),
+                                   on_solve=self.hooks.on_solve)
+        self.yarn_modulus = (job.params.mu * job.params.K1, job.params.mu * job.params.K2)
+        self.rows = []
+        self.ledger = {"external": 0.0, "regularisation": 0.0, "f": None, "g": None}
+        self._open_outputs(resume)
+        if config.mesh.pattern == "free":
+            say(FREE_MESH_WARNING)
+
+    def _open_outputs(self, resume: bool) -> None:
+        """The checkpoints (and the state to resume from), the disk's watch and the writer."""
+        from drape.io.checkpoint import Checkpoints, rewind_outputs
+        from drape.io.disk import Disk, estimate
+        from drape.io.writer import FIELDS_FILE, ResultsWriter
+        config, folder, comm = self.config, self.folder, self.comm
+        self.checkpoints = Checkpoints(folder, self.problem, self.job,
+                                       config.output.checkpoint_every, self.rows, self.ledger,
+                                       self.motion.prescribed_dofs)
+        self.start = self.checkpoints.load() if resume else None   # (step, t, dt)
+        if self.start is not None:
+            rewind_outputs(folder, self.rows, self.start[1], comm)
+            self.say(f"drape run: resuming from the checkpoint of step {self.start[0]} "
+                     f"(t = {self.start[1]:.6g})")
+        cell_fields = {name: field for part in self.parts
+                       for name, field in part.cell_fields.items()}
+        self.disk = Disk(folder, comm, estimate(self.problem, config, len(cell_fields)))
+        self.disk.warn_at_start(self.say)
+        self.checkpoints.disk = self.disk
+        output = config.output
+        self.writer = self.disk.write(FIELDS_FILE, lambda: ResultsWriter(
+            folder, self.problem, xdmf=output.xdmf, xdmf_every=output.xdmf_every,
+            snapshot=output.snapshot, append=self.start is not None,
+            extra_cell_fields=cell_fields or None), root_only=False, fields=True)
+
+    # --- one step ---------------------------------------------------------------------------
+    def record(self, step, t, iterations=0, cutbacks=0, dt=0.0, residual=0.0, seconds=0.0):
+        """The converged step's row of steps.csv (collective), appended to the rows."""
+        from mpi4py import MPI
+        problem, comm, ledger, rows = self.problem, self.comm, self.ledger, self.rows
+        force = problem.internal_force()
+        f_prescribed = force.array_r[self.motion.prescribed_dofs].copy()
+        u_prescribed = problem.u.x.array[self.motion.prescribed_dofs].copy()
+        if ledger["f"] is not None:
+            local = 0.5 * (ledger["f"] + f_prescribed) @ (u_prescribed - ledger["g"])
+            ledger["external"] += comm.allreduce(float(local))
+        ledger["f"], ledger["g"] = f_prescribed, u_prescribed
+        response = problem.response
+        row = {"step": step, "t": t, "dt": dt, "newton_iterations": iterations,
+               "cutbacks": cutbacks, "residual_norm": residual}
+        row.update(self.loading.history_values(t))
+        for name, value in self.motion.reactions(force).items():
+            row.update({f"{name}_Fx": value[0], f"{name}_Fy": value[1], f"{name}_Fz": value[2]})
+        row["external_work"] = ledger["external"]
+        row["regularisation_work"] = ledger["regularisation"]
+        row["regularisation_share"] = (ledger["regularisation"] / abs(ledger["external"])
+                                       if ledger["external"] != 0.0 else 0.0)
+        row["bending_energy"] = problem.bending_energy()
+        points = response.tau.size
+        local_max = float(np.abs(response.gamma_t_deg).max()) if points else 0.0
+        row["max_shear_angle_deg"] = comm.allreduce(local_max, op=MPI.MAX)
+        strain = max(float(np.abs(response.S11).max()) / self.yarn_modulus[0],
+                     float(np.abs(response.S22).max()) / self.yarn_modulus[1]) if points else 0.0
+        row["max_yarn_strain"] = comm.allreduce(strain, op=MPI.MAX)
+        row["tau_mean"] = comm.allreduce(float(response.tau.sum())) / comm.allreduce(points)
+        for part in self.parts:
+            part.measure(row, rows, force)
+        force.destroy()
+        row["seconds"] = seconds
+        rows.append(row)
+        return row
+
+    def _stop_if_requested(self) -> None:
+        from drape.errors import Interrupted
+        signal_name = self.stop.requested(self.comm)   # collective: all ranks stop together
+        if signal_name:
+            raise Interrupted(signal_name)
+
+    def attempt(self, t):
+        """Newton's attempt at load factor t from the committed state (a SolveResult)."""
+        self._stop_if_requested()
+        if self.hooks.on_attempt is not None:
+            self.hooks.on_attempt(t)
+        # a step whose files would not fit on the disk: the run stops before solving it
+        number = self.rows[-1]["step"] + 1
+        self.disk.check(number, self.checkpoints.due(number))
+        self.motion.set_load(t)
+        for part in self.parts:
+            part.set_load(t)
+            part.predict(t)
+        result = self.solver.solve()
+        # a re-solve stops where the first solve would have: at rtol of its first residual
+        floor = self.solver.rtol * result.first_residual
+        for part in self.parts:
+            result = part.resolve(t, lambda: self.solver.solve(floor), result)
+        self._stop_if_requested()   # a signal during the attempt cut it short: not a failure
+        return result
+
+    def accept(self, step) -> None:
+        """Commit a converged step (a drape.fe.solver.Step), record, write and checkpoint it."""
+        from drape.errors import WriteFailed
+        from drape.io.writer import FIELDS_FILE, STEPS_FILE
+        self.ledger["regularisation"] += self.problem.regularisation_work()
+        self.problem.commit(step.t)
+        row = self.record(step.number, step.t, step.iterations, step.cutbacks, step.dt,
+                          step.residual, step.seconds)
+        try:
+            self.disk.write(f"step {step.number}'s results ({STEPS_FILE}, {FIELDS_FILE})",
+                            lambda: self.writer.write_step(row, step.t,
+                                                           last=step.t >= 1.0 - 1e-12),
+                            root_only=False, fields=True)
+        except WriteFailed as failure:      # the files end with the step before
+            failure.committed = True
+            self.rows.pop()
+            raise
+        self.disk.measure((STEPS_FILE, FIELDS_FILE, "fields.h5"))
+        try:
+            self.checkpoints.step_done(step)
+        except WriteFailed as failure:
+            failure.committed = True
+            raise
+        if self.hooks.on_step is not None:
+            self.hooks.on_step(row, self.problem)
+
+    # --- the whole run ----------------------------------------------------------------------
+    def run(self) -> RunSummary:
+        """Solve the load steps from the start (or the checkpoint) to t = 1; see run_job."""
+        from drape.errors import RunFailed, WriteFailed
+        from drape.fe.solver import run_load_steps
+        if self.hooks.on_start is not None:
+            self.hooks.on_start(RunParts(self.job, self.problem, self.solver, self.motion,
+                                         self.parts))
+        write_failure = None
+        self.stop.install()
+        try:
+            start = self.start
+            if start is None:
+                self.motion.set_load(0.0)
+                for part in self.parts:
+                    part.set_load(0.0)
+                self.problem.evaluate()
+                self.writer.write_step(self.record(0, 0.0), 0.0)
+                start = (0, 0.0, None)
+            else:
+                for part in self.parts:
+                    part.set_load(start[1])
+            run_load_steps(self.config.steps, self.loading.breakpoints(), self.attempt,
+                           self.accept, self.problem.restore, step0=start[0], t0=start[1],
+                           dt0=start[2], log=self.say)
+        except WriteFailed as failure:
+            write_failure = failure
+            raise write_failed(failure, self.writer, self.checkpoints, self.rows,
+                               self.folder) from None
+        except RunFailed as failure:
+            raise self._failed(failure) from None
+        finally:
+            self.stop.uninstall()
+            self.writer.close()
+            self.solver.close()
+            if write_failure is None:   # after a write failure the resumed run writes them
+                self._finish_parts()
+        self.checkpoints.finished()
+        timings = dict(self.problem.timings)
+        timings.update({f"count_{k}": v for k, v in self.problem.counts.items()})
+        rows = self.rows
+        return RunSummary(rows[-1]["step"], rows[-1]["t"], time.perf_counter() - self.started,
+                          self.folder, rows, timings)
+
+    def _failed(self, failure):
+        """A step that did not converge, or a signal: the last converged step's snapshot and
+        checkpoint; returns the RunFailed (or Interrupted) to raise, saying what is kept."""
+        from drape.errors import Interrupted, RunFailed
+        self.problem.restore()
+        self.problem.evaluate()
+        rows, folder = self.rows, self.folder
+        if self.config.output.snapshot != "none":
+            self.writer.write_snapshot(rows[-1]["t"])
+        saved = self.checkpoints.save_last()
+        if isinstance(failure, Interrupted):
+            return Interrupted(f"{failure} received; stopped after step {rows[-1]['step']} at "
+                               f"t = {rows[-1]['t']:.6g}: results"
+                               f"{' and checkpoint' if saved else ''} up to it are in {folder}")
+        hint = "".join(part.failure_hint for part in self.parts)
+        return RunFailed(f"{failure}; results up to t = {rows[-1]['t']:.6g} (step "
+                         f"{rows[-1]['step']}) are in {folder}"
+                         f"{' (with a checkpoint)' if saved else ''}{hint}")
+
+    def _finish_parts(self) -> None:
+        """Each part's files from the rows so far (at least one converged step)."""
+        if len(self.rows) < 2:
+            return
+        for part in self.parts:
+            self.disk.write(part.files, lambda part=part: part.finish(
+                self.folder, self.rows, time.perf_counter() - self.started),
+                root_only=part.finish_on_root)
+
+
+def write_failed(failure, writer, checkpoints, rows, folder):
+    """After a write failure (drape.io.disk): fields.xdmf back to its last complete step; a
+    checkpoint of that step when the failure came before the step changed anything (a step
+    that would not fit) and there is room for one (else the last good one is kept). Returns
+    the WriteFailed to raise: the failure, what is kept, and whether a resume can follow."""
+    from drape.errors import WriteFailed
+    if not failure.fields_intact:
+        writer.rewind_fields()
+    room = None
+    if not getattr(failure, "committed", False):
+        try:
+            checkpoints.save_last(check_space=True)
+        except WriteFailed:
+            from drape.io.disk import size
+            room = size(checkpoints.disk.checkpoint_bytes())
+    kept = (f"; results up to step {rows[-1]['step']} (t = {rows[-1]['t']:.6g}) are kept in "
+            f"{folder}")
+    saved = checkpoints.saved_step
+    if saved is not None:
+        kept += f", with the checkpoint of step {saved}"
+        if room is not None:
+            kept += f" (no room for a newer one: about {room})"
+    elif room is not None:
+        kept += (f", without a checkpoint (no room for one either: about {room}): --overwrite "
+                 "starts over once there is space")
+    else:
+        kept += (", without a checkpoint (output.checkpoint_every = 0 or none written yet): "
+                 "--overwrite starts over")
+    error = WriteFailed(f"{failure}{kept}", fields_intact=failure.fields_intact)
+    error.resumable = saved is not None
+    return error
