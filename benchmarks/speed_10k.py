@@ -78,7 +78,9 @@ def report(label: str, result: dict) -> str:
         f"{label}: {s['cells']} cells, {s['ranks']} rank(s), drape from {Path(b['drape_file']).parent}",
         f"  wall_time_s {s['wall_time_s']:.1f} (whole process {result['process_s']:.1f} s, processor "
         f"{b['cpu_s']:.1f} s over the ranks); "
-        f"{s['steps']} steps, {s['newton_iterations']} Newton iterations, {s['cutbacks']} cutbacks",
+        f"{s['steps']} steps, {s['newton_iterations']} Newton iterations, {s['cutbacks']} cutbacks, "
+        f"{events['SNESSolve']['count']} Newton solves (holder re-solves and cut-back attempts "
+        f"included)",
         f"  factorisations {factor['count']:5d} {factor['s']:7.1f} s"
         f"  ({factor['s'] / max(factor['count'], 1):.3f} s each, "
         f"{factor['flops'] / max(factor['count'], 1) / 1e9:.2f} GFlop each)",
