@@ -82,8 +82,7 @@ def report(label: str, result: dict) -> str:
         f"{events['SNESSolve']['count']} Newton solves (holder re-solves and cut-back attempts "
         f"included)",
         f"  factorisations {factor['count']:5d} {factor['s']:7.1f} s"
-        f"  ({factor['s'] / max(factor['count'], 1):.3f} s each, "
-        f"{factor['flops'] / max(factor['count'], 1) / 1e9:.2f} GFlop each)",
+        f"  ({factor['s'] / max(factor['count'], 1):.3f} s each)",
         f"  triangular solves {events['MatSolve']['count']:5d} {events['MatSolve']['s']:7.1f} s",
         f"  residuals      {events['SNESFunctionEval']['count']:5d} "
         f"{events['SNESFunctionEval']['s']:7.1f} s   of which the law "
