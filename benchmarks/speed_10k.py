@@ -102,10 +102,11 @@ def main(argv=None) -> int:
     parser.add_argument("--baseline", default=BASELINE,
                         help=f"commit to compare against (default {BASELINE}); none: no baseline")
     parser.add_argument("--baseline-tree", type=Path,
-                        default=Path(tempfile.gettempdir()) / f"drape-baseline",
+                        default=Path(tempfile.gettempdir()) / "drape-baseline",
                         help="where its worktree is (made if missing)")
     parser.add_argument("--baseline-set", action="append", default=["mesh.size=2"],
-                        metavar="KEY=VALUE", help="the baseline's overrides (default mesh.size=2)")
+                        metavar="KEY=VALUE",
+                        help="the baseline's overrides, after mesh.size=2")
     parser.add_argument("--ranks", type=int, nargs="+", default=[2])
     parser.add_argument("--rounds", type=int, default=1)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
