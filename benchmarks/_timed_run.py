@@ -6,7 +6,7 @@ Runs drape's command line as `drape run` does (under mpirun: on every rank), wit
 event log on, and writes BREAKDOWN.json (rank 0): PETSc's counts and seconds of the
 factorisations (MatLUFactorNum, MatCholeskyFactorNum), triangular solves (MatSolve), residual
 and Jacobian evaluations (SNESFunctionEval, SNESJacobianEval), the slowest rank's; drape's own
-timers (drape.membrane.MembraneProblem.timings: the law, the point contributions, i.e. the
+timers (drape.fe.membrane.MembraneProblem.timings: the law, the point contributions, i.e. the
 tools' contact, and the assemblies), the slowest rank's; the processor seconds of all ranks
 (user + system: on a shared machine less noisy than wall time); and the drape package it ran
 (``drape_file``), which PYTHONPATH may point at another checkout's.
