@@ -75,10 +75,12 @@ def report(label: str, result: dict) -> str:
     mids = [v for k, v in draw.items() if k.startswith("mid")]
     corners = [v for k, v in draw.items() if k.startswith("corner")]
     lines = [
-        f"{label}: {s['cells']} cells, {s['ranks']} rank(s), drape from {Path(b['drape_file']).parent}",
-        f"  wall_time_s {s['wall_time_s']:.1f} (whole process {result['process_s']:.1f} s, processor "
-        f"{b['cpu_s']:.1f} s over the ranks); "
-        f"{s['steps']} steps, {s['newton_iterations']} Newton iterations, {s['cutbacks']} cutbacks, "
+        f"{label}: {s['cells']} cells, {s['ranks']} rank(s), "
+        f"drape from {Path(b['drape_file']).parent}",
+        f"  wall_time_s {s['wall_time_s']:.1f} (whole process {result['process_s']:.1f} s, "
+        f"processor {b['cpu_s']:.1f} s over the ranks); "
+        f"{s['steps']} steps, {s['newton_iterations']} Newton iterations, "
+        f"{s['cutbacks']} cutbacks, "
         f"{events['SNESSolve']['count']} Newton solves (holder re-solves and cut-back attempts "
         f"included)",
         f"  factorisations {factor['count']:5d} {factor['s']:7.1f} s"
@@ -128,8 +130,9 @@ def main(argv=None) -> int:
                 print(f"--- round {round_ + 1}, {ranks} rank(s); load average "
                       f"{os.getloadavg()[0]:.2f}")
                 for label, result in pair.items():
+                    shipped = " ".join(args.set) or "as shipped"
                     name = (f"base ({args.baseline}, {' '.join(args.baseline_set + args.set)})"
-                            if label == "base" else f"new (this checkout, {' '.join(args.set) or 'as shipped'})")
+                            if label == "base" else f"new (this checkout, {shipped})")
                     print(report(name, result))
                 if "base" in pair:
                     ratio = (pair["base"]["summary"]["wall_time_s"]
