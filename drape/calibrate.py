@@ -38,7 +38,7 @@ from drape.errors import InputError, RunFailed
 from drape.law.nested_surface import LawState, NestedSurfaceLaw
 from drape.law.parameters import (PAPER_GAMMA_MAX_DEG, MaterialParameters, SurfaceTable,
                                   load_material, material_toml, polynomial)
-from drape.measured import QUANTITIES
+from drape.measured import QUANTITIES, check_shear_angle, csv_number
 from drape.picture_frame import frame_tau
 
 HELP = "fit the law to a measured picture-frame curve (CSV) -> material TOML + PNG"
@@ -102,23 +102,10 @@ def read_curve(path: str | Path, frame_side: float | None = None) -> Curve:
             for line, row in enumerate(reader, start=2):
                 if not row or all(not cell.strip() for cell in row):
                     continue
-                for index, name, unit, out in ((i_gamma, "gamma_t_deg", "deg", gamma),
-                                               (i_value, column,
-                                                "N" if column == "force" else "N/mm",
-                                                value)):
-                    text = row[index].strip() if index < len(row) else ""
-                    try:
-                        number = float(text)
-                    except ValueError:
-                        number = math.nan
-                    if not math.isfinite(number):
-                        raise InputError(f"line {line}, column '{name}': {text!r} is not a number",
-                                         source=str(path), expected=f"a finite number ({unit})")
-                    if name == "gamma_t_deg" and abs(number) >= 90.0:
-                        raise InputError(f"line {line}, column 'gamma_t_deg': {text} is not a "
-                                         "shear angle", source=str(path),
-                                         expected="a number of degrees within (-90, 90)")
-                    out.append(number)
+                unit = "N" if column == "force" else "N/mm"
+                angle = csv_number(row, i_gamma, line, "gamma_t_deg", str(path), "deg")
+                gamma.append(check_shear_angle(angle, line, "gamma_t_deg", str(path)))
+                value.append(csv_number(row, i_value, line, column, str(path), unit))
     except UnicodeDecodeError:
         raise InputError("not a text file", source=str(path), expected=expected) from None
     gamma_deg, values = np.asarray(gamma, dtype=float), np.asarray(value, dtype=float)

@@ -52,6 +52,31 @@ SERIES_COLUMN = "series"
 STAGE2_ITERATIONS = 3
 
 
+def csv_number(row: list, index: int, line: int, column: str, source: str,
+               unit: str = "") -> float:
+    """Cell ``index`` of a CSV ``row`` (file line ``line``) as a finite number; InputError
+    naming the line and the column otherwise. A ``shear angle`` column (unit "deg" with
+    ``column`` an angle column) must also lie within (-90, 90) degrees."""
+    text = row[index].strip() if index < len(row) else ""
+    try:
+        number = float(text)
+    except ValueError:
+        number = math.nan
+    if not math.isfinite(number):
+        raise InputError(f"line {line}, column '{column}': {text!r} is not a number",
+                         source=source, expected=f"a finite number ({unit})" if unit else
+                         "a finite number")
+    return number
+
+
+def check_shear_angle(number: float, line: int, column: str, source: str) -> float:
+    """A shear angle read from a file: within (-90, 90) degrees, else InputError."""
+    if abs(number) >= 90.0:
+        raise InputError(f"line {line}, column '{column}': {number:g} is not a shear angle",
+                         source=source, expected="a number of degrees within (-90, 90)")
+    return number
+
+
 def shear_force(frame_force, gamma_deg):
     """F_s = F / (2 cos theta), theta = pi/4 - gamma/2 (N)."""
     theta = math.pi / 4 - np.radians(np.asarray(gamma_deg, dtype=float)) / 2
@@ -209,21 +234,9 @@ def read_series(path: str | Path, select: list[str] | None = None, quantity: str
     for line, text in lines[1:]:
         row = next(csv.reader([text]))
         name = row[0].strip()
-        numbers = []
-        for index in (angle, column):
-            cell = row[index].strip() if index < len(row) else ""
-            try:
-                number = float(cell)
-            except ValueError:
-                number = math.nan
-            if not math.isfinite(number):
-                raise InputError(f"line {line}, column '{header[index]}': {cell!r} is not a "
-                                 "number", source=str(path), expected="a finite number")
-            numbers.append(number)
-        if abs(numbers[0]) >= 90.0:
-            raise InputError(f"line {line}, column '{header[angle]}': {numbers[0]} is not a "
-                             "shear angle", source=str(path),
-                             expected="a number of degrees within (-90, 90)")
+        numbers = [csv_number(row, index, line, header[index], str(path))
+                   for index in (angle, column)]
+        check_shear_angle(numbers[0], line, header[angle], str(path))
         rows.setdefault(name, []).append(numbers)
     if not rows:
         raise InputError("no data rows", source=str(path), expected=expected)
