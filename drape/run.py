@@ -167,6 +167,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     from drape.loading import Loading
     from drape.membrane import MembraneProblem
     from drape.mesh import create_blank_mesh
+    from drape.oscillation import OSCILLATION_WARNING, ShearOscillation
     from drape.output import FIELDS_FILE, STEPS_FILE, ResultsWriter
     from drape.solver import NewtonSolver, run_load_steps
 
@@ -226,12 +227,14 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         root_only=False, fields=True)
     frame = config.picture_frame
     side = config.blank.length
-    yarn_modulus = (job.params.mu * job.params.K1, job.params.mu * job.params.K2)
     if config.mesh.pattern == "free":
         say("drape run: warning: mesh.pattern = \"free\": element edges do not follow the yarns; "
             "with stiff yarns such meshes lock in tension (too stiff, yarns stretched: watch "
             "max_yarn_strain in steps.csv). mesh.pattern = \"aligned\" avoids it; see "
             "docs/fe-solver.md")
+
+    oscillation = ShearOscillation(problem)
+    oscillation_warned = []
 
     def record(step, t, iterations=0, cutbacks=0, dt=0.0, residual=0.0, seconds=0.0):
         force = problem.internal_force()
@@ -254,9 +257,15 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
                                        if ledger["external"] != 0.0 else 0.0)
         row["bending_energy"] = problem.bending_energy()
         row["max_shear_angle_deg"] = comm.allreduce(local_max, op=MPI.MAX)
-        strain = max(float(np.abs(response.S11).max()) / yarn_modulus[0],
-                     float(np.abs(response.S22).max()) / yarn_modulus[1]) if response.tau.size else 0.0
+        strain = float(problem.yarn_strains().max()) if response.tau.size else 0.0
         row["max_yarn_strain"] = comm.allreduce(strain, op=MPI.MAX)
+        row["shear_oscillation_deg"] = oscillation.measure()
+        if row["shear_oscillation_deg"] > OSCILLATION_WARNING and not oscillation_warned:
+            oscillation_warned.append(step)
+            say(f"drape run: warning: step {step}: the shear angle oscillates from cell to cell "
+                f"by +-{row['shear_oscillation_deg']:.3g} deg (shear_oscillation_deg in "
+                f"steps.csv; above {OSCILLATION_WARNING:g} deg the shear map shows a spurious "
+                f"checkerboard: docs/blanks.md)")
         tau_sum = comm.allreduce(float(response.tau.sum()))
         tau_count = comm.allreduce(response.tau.size)
         row["tau_mean"] = tau_sum / tau_count
