@@ -148,33 +148,40 @@ def test_the_oscillation_measure_is_a_checkerboards_amplitude_and_blind_to_gradi
 # --- forming to full stroke -------------------------------------------------------------------
 
 def test_disc_and_octagon_reach_full_stroke_with_a_clean_field(formed):
-    """Full stroke, the title naming the blank, no oscillation above the warning (nor near it),
-    and the strip measured: its cells are few, their yarn strains within a few times the
-    aligned cells' (no locking)."""
+    """Full stroke statically, the title naming the blank, the oscillation measure below its
+    warning, and the strip measured: a small share of the blank, its yarn strain (at the
+    cells' centres, where it is integrated) no larger than the aligned cells' (no locking; it
+    was 2.4 times theirs, 1 %, with the strip integrated at 2x2 points)."""
     from mpi4py import MPI
+
+    from drape.oscillation import OSCILLATION_WARNING
     if MPI.COMM_WORLD.rank != 0:
         return
     name, job, summary, _ = formed
     assert summary["stroke_mm"] == pytest.approx(30.0)
     assert ("disc blank R 70" if name == "disc" else "8-gon blank") in summary["title"]
-    assert summary["max_shear_oscillation_deg"] < 0.5 * summary["shear_oscillation_warning_deg"]
+    assert summary["shear_oscillation_warning_deg"] == OSCILLATION_WARNING
+    assert summary["max_shear_oscillation_deg"] < OSCILLATION_WARNING
     assert 0 < summary["strip_area_fraction"] < 0.25
-    assert summary["max_yarn_strain_strip"] < 3 * summary["max_yarn_strain_aligned"]
+    assert summary["max_yarn_strain_strip"] <= summary["max_yarn_strain_aligned"]
+    assert summary["max_yarn_strain_aligned"] < 0.003
 
 
 def test_disc_and_octagon_shear_fields_have_the_square_symmetry(formed):
     """As the square's (tests/test_forming.py): the field is mirror-symmetric in the diagonal
     to Newton's tolerance, antisymmetric in the yarn axes within the law's even terms (5 % of
-    the peak); the shear at the pole (r < 10 mm) and along the yarn axes is below 5 % of the
-    peak: mirror pairs cancel there, and the cell-to-cell checkerboard of the O-grid disc
-    (+-17 deg at the pole) would fail this by far."""
+    the peak), and vanishes along the yarn axes (mirror pairs cancel). Near the pole
+    (r < 0.3 R) the fabric on the punch is a Chebyshev net on a sphere of radius R, whose shear
+    is gamma = X Y / R^2 to leading order (Gauss curvature 1/R^2): the field follows it within
+    1.5 deg (the square blank: 0.94 deg on its 5.6 mm mesh). The O-grid disc's cell-to-cell
+    checkerboard (+-17 deg at the pole) fails all three by far."""
     from mpi4py import MPI
     if MPI.COMM_WORLD.rank != 0:
         return
     _, _, summary, data = formed
     xy, gamma = data["point_xy"], data["gamma_t_deg"]
     top = np.abs(gamma).max()
-    assert top > 10.0
+    assert top > 30.0
     tree = cKDTree(xy)
 
     def image(transform):
@@ -185,6 +192,9 @@ def test_disc_and_octagon_shear_fields_have_the_square_symmetry(formed):
     for flip in ([-1, 1], [1, -1]):
         assert np.abs(image(lambda p: p * flip) + gamma).max() < 0.05 * top
     r = np.hypot(xy[:, 0], xy[:, 1])
-    assert np.abs(gamma[r < 10.0]).max() < 0.05 * top
     near_axis = (np.abs(xy[:, 1]) < 2.0) | (np.abs(xy[:, 0]) < 2.0)
-    assert np.abs(gamma[near_axis & (r < 40.0)]).max() < 0.05 * top
+    assert np.abs(gamma[near_axis & (r < 40.0)]).max() < 0.01 * top
+    R = 30.0
+    pole = r < 0.3 * R
+    chebyshev = np.degrees(xy[pole, 0] * xy[pole, 1] / R ** 2)
+    assert np.abs(gamma[pole] - chebyshev).max() < 1.5
