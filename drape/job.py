@@ -209,7 +209,7 @@ class BoundaryConfig:
     """Displacement components prescribed on a named boundary (formulas, mm); a component left
     out is free. Where two entries share nodes, the later entry wins there."""
 
-    on: str = setting("", "boundary name: rectangle left/right/bottom/top, disc edge, or "
+    on: str = setting("", "boundary name: rectangle left/right/bottom/top, disc or polygon edge, or "
                       "'boundary' (the whole outline)")
     ux: str | None = setting(None, "x displacement formula", unit="mm")
     uy: str | None = setting(None, "y displacement formula", unit="mm")
