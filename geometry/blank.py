@@ -1,8 +1,9 @@
-"""gmsh builders of the flat blank: a rectangle or a disc, meshed in the X-Y plane (mm).
+"""gmsh builders of the flat blank: a rectangle, a disc or a polygon, meshed in the X-Y plane (mm).
 
 Call :func:`build_blank` on one rank with gmsh initialised; it leaves the meshed model in
 ``gmsh.model`` with physical groups: the surface ``blank`` and the boundary curves (rectangle:
-``left`` x = 0, ``right`` x = length, ``bottom`` y = 0, ``top`` y = width; disc: ``edge``).
+``left`` x = 0, ``right`` x = length, ``bottom`` y = 0, ``top`` y = width; disc and polygon:
+``edge``; and ``blank_strip``, the cells of a clipped lattice between it and the outline).
 
 Patterns (yarn angle theta, degrees, warp G1 = (cos theta, sin theta)):
 
@@ -12,8 +13,9 @@ Patterns (yarn angle theta, degrees, warp G1 = (cos theta, sin theta)):
   squares along the yarns everywhere except one row of cells along the outline, where the
   lattice's half-squares are cut into three quadrilaterals each. The outline must fit the
   lattice: length/width a ratio of small integers.
-* ``aligned`` disc: an O-grid whose central square (half the radius to its corners) follows the
-  yarns; the four blocks around it bend towards the circle.
+* ``aligned`` disc or polygon, any theta: the *clipped lattice* (see :func:`clipped_lattice`):
+  yarn-aligned squares wherever they lie half an element inside the outline, and one strip of
+  quadrilaterals from their staircase to the outline (``docs/blanks.md``).
 * ``free``: gmsh's unstructured mesh (Frontal-Delaunay; quadrilaterals by Blossom recombination),
   not aligned with the yarns: such triangles lock in tension (``docs/fe-solver.md``).
 
@@ -86,7 +88,7 @@ def build_blank(gmsh, shape: str, *, length: float = 100.0, width: float = 100.0
             cells, strip = _split_quads(nodes, cells), np.concatenate([strip, strip])
         names = _discrete(gmsh, nodes, cells, {DISC_EDGE: edge}, quads, strip=strip)
     elif shape == "disc":
-        names = _disc(gmsh, radius, yarn_angle, size, quads, aligned=False)
+        names = _disc_free(gmsh, radius, yarn_angle, size, quads)
     else:
         names = _polygon_free(gmsh, outline, size, quads)
     _check_cells(gmsh, quads)
@@ -267,40 +269,16 @@ def _discrete(gmsh, nodes, cells, sides, quads, strip=None):
 
 # --- disc ---------------------------------------------------------------------------------------
 
-def _disc(gmsh, radius, yarn_angle, size, quads, aligned):
+def _disc_free(gmsh, radius, yarn_angle, size, quads):
     geo = gmsh.model.geo
     centre = geo.addPoint(0.0, 0.0, 0.0)
     angles = [math.radians(yarn_angle + 45.0 + 90.0 * k) for k in range(4)]
     rim = [geo.addPoint(radius * math.cos(a), radius * math.sin(a), 0.0) for a in angles]
     arcs = [geo.addCircleArc(rim[k], centre, rim[(k + 1) % 4]) for k in range(4)]
-    if not aligned:
-        loop = geo.addCurveLoop(arcs)
-        surface = geo.addPlaneSurface([loop])
-        geo.synchronize()
-        names = _physical(gmsh, {DISC_EDGE: arcs}, [surface])
-        _free_mesh(gmsh, size, quads)
-        return names
-    inner = 0.5 * radius                            # distance of the square's corners
-    corner = [geo.addPoint(inner * math.cos(a), inner * math.sin(a), 0.0) for a in angles]
-    sides = [geo.addLine(corner[k], corner[(k + 1) % 4]) for k in range(4)]
-    spokes = [geo.addLine(corner[k], rim[k]) for k in range(4)]
-    n_side = max(1, round(inner * math.sqrt(2.0) / size))
-    n_spoke = max(1, round((radius - inner) / size))
-    surfaces = [geo.addPlaneSurface([geo.addCurveLoop(sides)])]
-    for k in range(4):
-        loop = geo.addCurveLoop([spokes[k], arcs[k], -spokes[(k + 1) % 4], -sides[k]])
-        surfaces.append(geo.addPlaneSurface([loop]))
-    for curve in sides + arcs:
-        geo.mesh.setTransfiniteCurve(curve, n_side + 1)
-    for curve in spokes:
-        geo.mesh.setTransfiniteCurve(curve, n_spoke + 1)
-    for surface in surfaces:
-        geo.mesh.setTransfiniteSurface(surface, "Left")
-        if quads:
-            geo.mesh.setRecombine(2, surface)
+    surface = geo.addPlaneSurface([geo.addCurveLoop(arcs)])
     geo.synchronize()
-    names = _physical(gmsh, {DISC_EDGE: arcs}, surfaces)
-    gmsh.model.mesh.generate(2)
+    names = _physical(gmsh, {DISC_EDGE: arcs}, [surface])
+    _free_mesh(gmsh, size, quads)
     return names
 
 
