@@ -19,7 +19,7 @@ import numpy as np
 
 #: deg: above this the log warns that the shear map oscillates from cell to cell
 #: (docs/blanks.md, "The oscillation measure")
-OSCILLATION_WARNING = 3.0
+OSCILLATION_WARNING = 5.0
 
 
 class ShearOscillation:

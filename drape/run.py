@@ -264,8 +264,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             oscillation_warned.append(step)
             say(f"drape run: warning: step {step}: the shear angle oscillates from cell to cell "
                 f"by +-{row['shear_oscillation_deg']:.3g} deg (shear_oscillation_deg in "
-                f"steps.csv; above {OSCILLATION_WARNING:g} deg the shear map shows a spurious "
-                f"checkerboard: docs/blanks.md)")
+                f"steps.csv): above {OSCILLATION_WARNING:g} deg the shear map has a cell-scale "
+                f"pattern, a spurious checkerboard (a mesh that locks) or wrinkles only a few "
+                f"cells wide; docs/blanks.md")
         tau_sum = comm.allreduce(float(response.tau.sum()))
         tau_count = comm.allreduce(response.tau.size)
         row["tau_mean"] = tau_sum / tau_count
