@@ -9,7 +9,7 @@ OUT and, at every converged step, sums traction x area over the blank's quadratu
 tool: N the normal part (pressure p times the tool's normal), F the friction part (the rest);
 z vertical (up), r radial (outward from the z axis: on the flange, friction resisting the
 draw-in is positive). Prints the last step's sums (N) and writes all of them to
-OUT/contact_force_split.json. The figures in docs/forming.md ("Penalty") were taken with it.
+OUT/contact_force_split.json. The figures in docs/forming-checks.md ("Penalty") were taken with it.
 """
 
 from __future__ import annotations
@@ -27,30 +27,28 @@ def main(argv=None) -> int:
     config, folder, *overrides = argv
     from mpi4py import MPI
 
-    from drape import forming
     from drape.job import load_job
     from drape.run import run_job
 
-    rows = []
-    measure = forming.Forming.measure
+    rows, parts = [], {}
 
-    def measure_and_split(self, t, converged=True):
-        row = measure(self, t, converged)
-        contact, comm = self.tool_contact, self.comm
+    def split_forces(row, problem):
+        """The tools' contact forces of the converged step, split into normal and friction."""
+        forming = parts["run"].forming
+        contact, comm = forming.tool_contact, forming.comm
         xy = contact.reference_points[:, :2] + contact._u[:, :2]
         radial = xy / np.maximum(np.linalg.norm(xy, axis=1), 1e-12)[:, None]
         split = {"stroke": row["stroke"]}
         for name, (_, response) in contact.last.items():
             normal = response.pressure[:, None] * contact._trial_slip[name][1]
             for part, traction in (("N", normal), ("F", response.traction - normal)):
-                split[f"{name}_{part}z"] = comm.allreduce(float(traction[:, 2] @ self.areas))
+                split[f"{name}_{part}z"] = comm.allreduce(float(traction[:, 2] @ forming.areas))
                 split[f"{name}_{part}r"] = comm.allreduce(
-                    float(np.einsum("ij,ij->i", traction[:, :2], radial) @ self.areas))
+                    float(np.einsum("ij,ij->i", traction[:, :2], radial) @ forming.areas))
         rows.append(split)
-        return row
 
-    forming.Forming.measure = measure_and_split
-    run_job(load_job(config, overrides=overrides), output=folder)
+    run_job(load_job(config, overrides=overrides), output=folder,
+            on_start=lambda run: parts.update(run=run), on_step=split_forces)
     if MPI.COMM_WORLD.rank == 0:
         with open(f"{folder}/contact_force_split.json", "w") as stream:
             json.dump(rows, stream, indent=1)

@@ -5,20 +5,21 @@
 
 Builds the tools with their default meshes (docs/tools.md), then times, on N points each:
 
-* double dome, meshed (drape.tools.MeshedSurface) -- the punch and the die:
+* double dome, meshed (drape.forming.surfaces.MeshedSurface) -- the punch and the die:
   - ``contact``: points within +-0.3 mm of the tool's surface (a draped ply in contact);
   - ``near``: points within about +-3 mm (the ply around the contact zone);
   - ``blank``: a flat blank (1 mm under z = 0, over the die's footprint) against the punch in
     its working position: most points are 10-250 mm away (the first load step), with a 5 mm
     cutoff on N points and exact on --far-points points (exact far queries cost about d / h
     candidates per point: d the distance, h the element size);
-* hemisphere: the punch and the die, analytic (drape.tools.AxisymmetricSurface) and meshed,
+* hemisphere: the punch and the die, analytic (drape.forming.surfaces.AxisymmetricSurface) and
+  meshed,
   on points within +-3 mm of their surfaces;
-* the contact law (drape.contact.traction) on N points in contact, half of them slipping.
+* the contact law (drape.forming.contact.traction) on N points in contact, half of them slipping.
 
 Times are the best of --repeats (wall clock, after one warm-up on 1000 points); "pairs/pt" is
 the number of exact point-triangle projections per point. The machine's load matters: the
-figures in docs/tools.md say on what they were taken.
+figures in docs/contact.md say on what they were taken.
 """
 
 from __future__ import annotations
@@ -30,10 +31,10 @@ import time
 
 import numpy as np
 
-from drape.contact import traction
+from drape.forming.contact import traction
 from drape.geometry.tools import (DoubleDomeTools, HemisphereTools, analytic_tools,
                                   build_tools)
-from drape.tools import MeshedSurface
+from drape.forming.surfaces import MeshedSurface
 
 
 def near_points(surface, n, spread, rng):

@@ -85,7 +85,9 @@ def main(argv=None) -> int:
             ("cutbacks", lambda r: r["summary"]["cutbacks"]),
             ("load steps wall time (s)", lambda r: f"{r['summary']['wall_time_s']:.1f}"),
             ("whole process (s)", lambda r: f"{r['process_s']:.1f}"),
-            ("s per Newton iteration", lambda r: f"{r['summary']['wall_time_s'] / max(1, r['summary']['newton_iterations']):.3f}"),
+            ("s per Newton iteration",
+             lambda r: "%.3f" % (r['summary']['wall_time_s']
+                                 / max(1, r['summary']['newton_iterations']))),
             ("max shear (deg)", lambda r: f"{r['summary']['max_shear_angle_deg']:.3f}"),
             ("max punch force (N)", lambda r: f"{r['summary']['max_punch_force_N']:.3f}")]
     for label, value in rows:

@@ -4,14 +4,15 @@
 
 CONFIG is the job's TOML, RESULTS the folder its run wrote (finished or stopped: the last
 converged step's `result.npz` is used). The kinematic (fishnet) drape puts the same ply on the
-die's exact surface (drape/kinematic.py: inextensible yarns, no forces), crossing the blank's
+die's exact surface (drape/forming/kinematic.py: inextensible yarns, no forces), crossing the
+blank's
 centre at the die's point nearest (0, 0, -40) mm, the saddle's floor. Prints the stroke reached
-and `drape.kinematic.compare_peaks`: the FE peak on the flat blank, the kinematic shear's
+and `drape.forming.kinematic.compare_peaks`: the FE peak on the flat blank, the kinematic shear's
 percentile there and over the FE's top 2 %, and the rank correlation of the two maps; then,
 region by region of the flat blank (the saddle, the two ends on the x axis, the corners, the
 middles of the long sides, the domes; mm from the blank's centre, in ZONES), the largest and
 the 90th-percentile shear of the FE and of the kinematic drape. The figures in
-docs/forming.md ("Double dome") were taken with it.
+docs/double-dome.md were taken with it.
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ def main(argv=None) -> int:
     from drape.errors import InputError
     from drape.geometry.tools import analytic_double_dome_tools
     from drape.job import load_job
-    from drape.kinematic import compare_peaks, drape_fishnet
+    from drape.forming.kinematic import compare_peaks, drape_fishnet
 
     try:
         job = load_job(args.config)

@@ -14,7 +14,8 @@ random cyclic history (not timed):
 
 Times are the process's CPU time (time.process_time), not the wall clock: the project's
 machines are shared, and the CPU time of a single-threaded call does not count the time other
-jobs hold the core. Columns (points per second of CPU time, one core): *compiled*, the best of --repeats calls from the same
+jobs hold the core. Columns (points per second of CPU time, one core): *compiled*, the best of
+--repeats calls from the same
 committed state (as in a Newton loop); *interpreted*, the same kernel with NUMBA_DISABLE_JIT=1
 in a subprocess, on a sample of --sample points (its time is linear in N); *v1 numpy*, the
 vectorised law of ``git show REV:drape/law/nested_surface.py`` (version 1 of the reading, so

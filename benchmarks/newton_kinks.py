@@ -41,36 +41,32 @@ def main(argv=None) -> int:
     threshold = float(threshold)
     from petsc4py import PETSc
 
-    from drape import forming, solver
     from drape.job import load_job
     from drape.run import run_job
 
-    jobs = {}
-    bind = forming.Forming.bind
+    parts, iterates = {}, []
 
-    def keep(self, problem):
-        jobs["forming"] = self
-        return bind(self, problem)
+    def watch(t):
+        """Before each attempt: record Newton's iterates in the first solve from T or beyond."""
+        newton = parts["run"].solver
+        if "done" not in parts and newton.problem.t_committed >= threshold:
+            iterates.clear()
+            newton.snes.setMonitor(
+                lambda snes, its, norm: iterates.append(snes.getSolution().copy()))
+            parts["watching"] = True
 
-    forming.Forming.bind = keep
-    solve = solver.NewtonSolver.solve
-
-    def diagnose(self, floor=0.0):
-        problem = self.problem
-        if "done" in jobs or problem.t_committed < threshold:
-            return solve(self, floor)
-        iterates = []
-        self.snes.setMonitor(lambda snes, its, norm: iterates.append(snes.getSolution().copy()))
-        result = solve(self, floor)
-        self.snes.cancelMonitor()
-        jobs["done"] = True
+    def diagnose(newton, result):
+        if not parts.pop("watching", False):
+            return
+        newton.snes.cancelMonitor()
+        parts["done"] = True
+        problem = newton.problem
         print(f"step from t = {problem.t_committed:.6g}: {result.iterations} Newton iterations")
-        report(self, problem, jobs["forming"], iterates, PETSc)
-        problem.residual(self.snes, self.x, self.b)   # leave the problem at the solution
-        return result
+        report(newton, problem, parts["run"].forming, iterates, PETSc)
+        problem.residual(newton.snes, newton.x, newton.b)   # leave the problem at the solution
 
-    solver.NewtonSolver.solve = diagnose
-    run_job(load_job(config, overrides=overrides), output=folder)
+    run_job(load_job(config, overrides=overrides), output=folder,
+            on_start=lambda run: parts.update(run=run), on_attempt=watch, on_solve=diagnose)
     return 0
 
 

@@ -14,7 +14,7 @@ instance, how fast the residual falls in the attempts that fail). ``--until MM``
 after its first converged step at or beyond MM (the stroke's first stretch alone; the results
 folder keeps what was written, as after an interruption).
 
-The by-stage figures in docs/benchmarks.md ("Where the full stroke's time goes now, by stage")
+The by-stage figures in docs/benchmarks.md ("Where the full stroke's time goes, by stage")
 were taken with it.
 """
 
@@ -53,27 +53,17 @@ def main(argv=None) -> int:
 
     from mpi4py import MPI
 
-    from drape import forming, solver
     from drape.job import load_job
     from drape.run import run_job
 
-    records, tools = [], {}
-    bind = forming.Forming.bind
+    records, parts = [], {}
 
-    def keep(self, problem):
-        tools["forming"] = self
-        return bind(self, problem)
-
-    solve = solver.NewtonSolver.solve
-
-    def recording(self, floor=0.0):
-        result = solve(self, floor)
+    def recording(newton, result):
         records.append(dict(
-            stroke=tools["forming"].stroke * float(self.problem.t_committed),
+            stroke=parts["run"].forming.stroke * float(newton.problem.t_committed),
             converged=result.converged, iterations=result.iterations, reason=result.reason,
             seconds=result.seconds,
-            history=[float(v) for v in self.snes.getConvergenceHistory()[0]]))
-        return result
+            history=[float(v) for v in newton.snes.getConvergenceHistory()[0]]))
 
     class Reached(Exception):
         """The stroke given by --until is reached."""
@@ -82,10 +72,10 @@ def main(argv=None) -> int:
         if row["stroke"] >= args.until:
             raise Reached
 
-    forming.Forming.bind, solver.NewtonSolver.solve = keep, recording
     start = time.perf_counter()
     try:
         run_job(load_job(args.config, overrides=args.set), output=args.folder, overwrite=True,
+                on_start=lambda run: parts.update(run=run), on_solve=recording,
                 on_step=None if args.until is None else stop_at_until)
     except Reached:
         pass

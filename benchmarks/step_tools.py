@@ -11,7 +11,7 @@ on those files, with the same overrides, and prints per run: wall time, the time
 tools' closest-point queries (and how many points were searched rather than answered from
 their candidate lists), steps / Newton iterations, peak shear, mid-side draw-in, punch force
 at the end, and the holder force's range over the converged steps. ``--margin 0`` turns the
-meshed tools' candidate lists off (drape.tools.MeshedSurface, docs/tools.md). ``--tools
+meshed tools' candidate lists off (drape.forming.surfaces.MeshedSurface, docs/tools.md). ``--tools
 double_dome``: configs/double_dome.toml, its tools written by drape's gmsh builder with the die
 and holder plates 50 mm wider all round (tests/cad_helpers.py, write_double_dome_step).
 """
@@ -45,7 +45,7 @@ def timed_queries(forming, clock):
 def run(config, folder, overrides, margin):
     from mpi4py import MPI
 
-    import drape.forming as forming_module
+    import drape.forming.press as forming_module
     from drape.job import load_job
     from drape.run import run_job
 
@@ -104,7 +104,7 @@ def main():
                 continue
             margin = args.margin
             if margin is None:
-                from drape.forming import TOOL_LIST_MARGIN
+                from drape.forming.press import TOOL_LIST_MARGIN
                 margin = TOOL_LIST_MARGIN
             results[name] = run(path, tmp / name, overrides, margin)
             print(name, results[name], flush=True)

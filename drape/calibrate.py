@@ -103,7 +103,8 @@ def read_curve(path: str | Path, frame_side: float | None = None) -> Curve:
                 if not row or all(not cell.strip() for cell in row):
                     continue
                 for index, name, unit, out in ((i_gamma, "gamma_t_deg", "deg", gamma),
-                                               (i_value, column, "N" if column == "force" else "N/mm",
+                                               (i_value, column,
+                                                "N" if column == "force" else "N/mm",
                                                 value)):
                     text = row[index].strip() if index < len(row) else ""
                     try:
@@ -125,7 +126,8 @@ def read_curve(path: str | Path, frame_side: float | None = None) -> Curve:
         raise InputError(f"{gamma_deg.size} data rows", source=str(path),
                          expected="at least 10 rows, one per increment of a cyclic test")
     direction = np.sign(np.diff(np.r_[0.0, gamma_deg]))
-    if not (np.any(direction * np.sign(gamma_deg) > 0) and np.any(direction * np.sign(gamma_deg) < 0)):
+    if not (np.any(direction * np.sign(gamma_deg) > 0)
+            and np.any(direction * np.sign(gamma_deg) < 0)):
         raise InputError("the shear angle never goes back towards 0", source=str(path),
                          expected="a cyclic history: loading and unloading branches "
                                   "(the outer surface's centre and radius are told apart by both)")
@@ -179,7 +181,8 @@ def simulate(params: MaterialParameters, gamma_deg, state: LawState | None = Non
     for i, s in enumerate(sines):
         response = law.update(state, one, one, np.array([s]))
         state = response.trial
-        tau[i], gamma_p[i], active[i] = response.tau[0], state.gamma_p[0], response.active_surface[0]
+        tau[i], gamma_p[i], active[i] = (response.tau[0], state.gamma_p[0],
+                                         response.active_surface[0])
     return tau, gamma_p, active, state
 
 
@@ -485,7 +488,8 @@ def plot_fit(path: Path, curve: Curve, result: Calibration) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
-    ax.plot(curve.gamma_deg, curve.tau, ".", color="0.55", ms=2.5, label=f"data ({len(curve)} rows)")
+    ax.plot(curve.gamma_deg, curve.tau, ".", color="0.55", ms=2.5,
+            label=f"data ({len(curve)} rows)")
     ax.plot(curve.gamma_deg, result.tau_one_surface, color="tab:orange", lw=1.1, ls="--",
             label=f"stage 1, one surface (RMS {result.rms_one_surface:.3g} N/mm)", zorder=3)
     if result.nested.n:
@@ -555,12 +559,14 @@ def add_arguments(parser) -> None:
                         help="folder for material.toml, calibration.png and calibration.csv "
                              "(default results/calibrate)")
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace the results (material.toml, calibration.csv/png) already in --output")
+                        help="replace the results (material.toml, calibration.csv/png) already "
+                             "in --output")
 
 
 def main(args) -> int:
-    from drape.folder import claim
-    for key, value, lo, hi in (("--surfaces", args.surfaces, 0, 6), ("--degree", args.degree, 1, 12),
+    from drape.io.folder import claim
+    for key, value, lo, hi in (("--surfaces", args.surfaces, 0, 6),
+                               ("--degree", args.degree, 1, 12),
                                ("--fit-rows", args.fit_rows, 20, 10 ** 6)):
         if not lo <= value <= hi:
             raise InputError("out of range", key=key, value=value,
@@ -608,7 +614,8 @@ def main(args) -> int:
 
     tau_range = float(np.ptp(curve.tau))
     header = [f"# drape calibrate: fitted to {curve.source} ({len(curve)} rows, column "
-              f"'{curve.column}'{f', frame side {args.frame_side:g} mm' if args.frame_side else ''})",
+              f"'{curve.column}'"
+              f"{f', frame side {args.frame_side:g} mm' if args.frame_side else ''})",
               f"# RMS error in tau: one surface (stage 1) {result.rms_one_surface:.4g} N/mm"
               + (f", {result.nested.n + 1} nested surfaces (stage 2) {result.rms_nested:.4g} N/mm"
                  if result.nested.n else "") + f"; tau range {tau_range:.4g} N/mm",
@@ -625,10 +632,12 @@ def main(args) -> int:
         for row in zip(curve.gamma_deg, curve.tau, result.tau_one_surface, result.tau_nested):
             writer.writerow([repr(float(v)) for v in row])
     plot_fit(output / "calibration.png", curve, result)
-    summary = (f"drape calibrate: RMS error in tau (range {tau_range:.4g} N/mm): stage 1, one surface "
-               f"{result.rms_one_surface:.4g} N/mm ({100 * result.rms_one_surface / tau_range:.2f} %)")
+    summary = (f"drape calibrate: RMS error in tau (range {tau_range:.4g} N/mm): stage 1, "
+               f"one surface {result.rms_one_surface:.4g} N/mm "
+               f"({100 * result.rms_one_surface / tau_range:.2f} %)")
     if result.nested.n:
-        summary += (f"; stage 2, {result.nested.n + 1} nested surfaces {result.rms_nested:.4g} N/mm "
+        summary += (f"; stage 2, {result.nested.n + 1} nested surfaces "
+                    f"{result.rms_nested:.4g} N/mm "
                     f"({100 * result.rms_nested / tau_range:.2f} %)")
     print(summary)
     print(f"drape calibrate: wrote {output / 'material.toml'}, {output / 'calibration.png'} and "

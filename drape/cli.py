@@ -21,7 +21,7 @@ SUBCOMMANDS = {
     "picture-frame": "drape.picture_frame",
     "run": "drape.run",
     "calibrate": "drape.calibrate",
-    "tools": "drape.tools_cli",
+    "tools": "drape.tools_command",
     "view": "drape.view",
 }
 
@@ -85,7 +85,8 @@ def _report(message: str) -> None:
     mpi = sys.modules.get("mpi4py.MPI")
     if mpi is not None and mpi.COMM_WORLD.rank != 0:
         return
-    if mpi is None and os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")) != "0":
+    if mpi is None and os.environ.get("OMPI_COMM_WORLD_RANK",
+                                      os.environ.get("PMI_RANK", "0")) != "0":
         return
     print(message, file=sys.stderr)
 

@@ -2,7 +2,8 @@
 
 A dataclass is its own schema. Each field's type says what TOML value it takes (``float``
 accepts integers, ``tuple[float, ...]`` an array, a nested dataclass a table, ``dict[str, X]`` a
-table of named X (user-chosen keys), ``Literal`` one of a few strings); ``field(metadata={"check": ..., "doc": ...})`` adds a range check and the text
+table of named X (user-chosen keys), ``Literal`` one of a few strings);
+``field(metadata={"check": ..., "doc": ...})`` adds a range check and the text
 used in error messages. Unknown keys are refused with the closest known names. Cross-field rules
 live in the dataclass's ``validate()`` method, which raises :class:`~drape.errors.InputError`.
 """
@@ -93,7 +94,8 @@ def _type_name(tp) -> str:
     if origin is Literal:
         return "one of " + ", ".join(repr(v) for v in typing.get_args(tp))
     if origin is tuple:
-        return "an array of " + _type_name(typing.get_args(tp)[0]).removeprefix("a ").removeprefix("an ") + "s"
+        item = _type_name(typing.get_args(tp)[0]).removeprefix("a ").removeprefix("an ")
+        return "an array of " + item + "s"
     if origin is dict:
         item = _type_name(typing.get_args(tp)[1])
         if " or " in item:
@@ -152,12 +154,14 @@ def _convert(tp, value, key: str, source: str | None):
         if not isinstance(value, list):
             raise bad
         item_type = typing.get_args(tp)[0]
-        return tuple(_convert(item_type, item, f"{key}[{i}]", source) for i, item in enumerate(value))
+        return tuple(_convert(item_type, item, f"{key}[{i}]", source)
+                     for i, item in enumerate(value))
     if origin is dict:
         if not isinstance(value, dict):
             raise bad
         item_type = typing.get_args(tp)[1]
-        return {name: _convert(item_type, item, f"{key}.{name}", source) for name, item in value.items()}
+        return {name: _convert(item_type, item, f"{key}.{name}", source)
+                for name, item in value.items()}
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise bad
@@ -215,10 +219,11 @@ def to_mapping(instance) -> dict:
         if dataclasses.is_dataclass(value):
             value = to_mapping(value)
         elif isinstance(value, dict):
-            value = {k: to_mapping(v) if dataclasses.is_dataclass(v) else v for k, v in value.items()}
+            value = {k: to_mapping(v) if dataclasses.is_dataclass(v) else v
+                     for k, v in value.items()}
         elif isinstance(value, tuple):
-            value = [to_mapping(v) if dataclasses.is_dataclass(v) else list(v) if isinstance(v, tuple)
-                     else v for v in value]
+            value = [to_mapping(v) if dataclasses.is_dataclass(v)
+                     else list(v) if isinstance(v, tuple) else v for v in value]
         out[fld.name] = value
     return out
 

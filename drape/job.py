@@ -18,7 +18,7 @@ import numpy as np
 
 from drape.config import (describe, each, from_mapping, in_range, non_negative, positive,
                           read_toml, setting)
-from drape.contact import ContactParameters
+from drape.forming.contact import ContactParameters
 from drape.errors import InputError
 from drape.geometry.tools import ToolsConfig
 
@@ -45,7 +45,8 @@ class BlankConfig:
         (), "polygon: its vertices in order, [[x0, y0], [x1, y1], ...] (at least 3; a forming "
         "job's tools have their axis at x = y = 0)", unit="mm")
     yarn_angle: float = setting(0.0, "angle theta from x to the warp yarns G1 = (cos, sin); "
-                                "the weft G2 is at theta + 90; from -90 to 90 (every direction: theta + 180 is the "
+                                "the weft G2 is at theta + 90; from -90 to 90 "
+                                "(every direction: theta + 180 is the "
                                 "same yarn)", in_range(-90.0, 90.0), "deg")
 
     def validate(self):
@@ -107,10 +108,12 @@ class StepsConfig:
     """Adaptive load stepping in the load factor t (0 to 1)."""
 
     initial: float = setting(0.01, "first step", in_range(0.0, 1.0, lo_open=True))
-    minimum: float = setting(1e-6, "smallest step before the run fails", in_range(0.0, 1.0, lo_open=True))
+    minimum: float = setting(1e-6, "smallest step before the run fails",
+                             in_range(0.0, 1.0, lo_open=True))
     maximum: float = setting(0.05, "largest step", in_range(0.0, 1.0, lo_open=True))
     growth: float = setting(1.5, "step growth after an easy step", in_range(1.0, 10.0))
-    cutback: float = setting(0.5, "step reduction after a failed step", in_range(0.0, 1.0, lo_open=True, hi_open=True))
+    cutback: float = setting(0.5, "step reduction after a failed step",
+                             in_range(0.0, 1.0, lo_open=True, hi_open=True))
     easy_iterations: int = setting(4, "a step converged in at most this many Newton iterations "
                                    "lets the next one grow", positive)
 
@@ -132,7 +135,8 @@ class SolverConfig:
         "direct", "'direct': LU with MUMPS; 'iterative' (large meshes): GMRES with a field "
         "split, GAMG with the rigid-body near-nullspace in the plane, GAMG out of it")
     max_iterations: int = setting(20, "Newton iterations per step before a cutback", positive)
-    rtol: float = setting(1e-10, "convergence: residual norm relative to the step's first", positive)
+    rtol: float = setting(1e-10, "convergence: residual norm relative to the step's first",
+                          positive)
     atol: float = setting(1e-12, "convergence: absolute residual norm as a fraction of the force "
                           "scale mu*max(K1, K2)*sqrt(blank area)", positive)
     neutral_loading_band: float = setting(
@@ -169,7 +173,7 @@ DEFAULT_FORMING_BENDING = 10.0
 @dataclasses.dataclass(frozen=True)
 class BendingConfig:
     """The fabric's bending rigidity: not part of the paper's in-plane law, a hinge energy
-    across the element edges (drape/membrane.py). A flat blank has no bending energy."""
+    across the element edges (drape/fe/membrane.py). A flat blank has no bending energy."""
 
     rigidity: float | None = setting(
         None, "bending rigidity B, moment per unit width per unit curvature; unset: 0 for a "
@@ -209,7 +213,8 @@ class BoundaryConfig:
     """Displacement components prescribed on a named boundary (formulas, mm); a component left
     out is free. Where two entries share nodes, the later entry wins there."""
 
-    on: str = setting("", "boundary name: rectangle left/right/bottom/top, disc or polygon edge, or "
+    on: str = setting("", "boundary name: rectangle left/right/bottom/top, disc or polygon "
+                      "edge, or "
                       "'boundary' (the whole outline)")
     ux: str | None = setting(None, "x displacement formula", unit="mm")
     uy: str | None = setting(None, "y displacement formula", unit="mm")
@@ -313,7 +318,8 @@ class JobConfig:
     mesh: MeshConfig = setting(MeshConfig(), "its mesh")
     steps: StepsConfig = setting(StepsConfig(), "load stepping")
     solver: SolverConfig = setting(SolverConfig(), "Newton and linear solver")
-    regularisation: RegularisationConfig = setting(RegularisationConfig(), "flat-membrane regularisation")
+    regularisation: RegularisationConfig = setting(RegularisationConfig(),
+                                                   "flat-membrane regularisation")
     bending: BendingConfig = setting(BendingConfig(), "the fabric's bending rigidity")
     history: dict[str, HistoryConfig] = setting({}, "named piecewise-linear histories of t")
     boundary: tuple[BoundaryConfig, ...] = setting((), "prescribed displacements ([[boundary]])")
@@ -328,7 +334,7 @@ class JobConfig:
     contact: ContactParameters = setting(ContactParameters(), "tool-fabric contact and friction")
 
     def validate(self):
-        from drape.loading import CONSTANTS, FUNCTIONS, VARIABLES
+        from drape.fe.loading import CONSTANTS, FUNCTIONS, VARIABLES
         reserved = set(VARIABLES) | set(CONSTANTS) | set(FUNCTIONS)
         for name in self.history:
             if not name.isidentifier() or name in reserved:
@@ -348,7 +354,8 @@ class JobConfig:
         known = BOUNDARY_NAMES[self.blank.shape] + (WHOLE_BOUNDARY,)
         for i, entry in enumerate(self.boundary):
             if entry.on not in known:
-                raise InputError(f"unknown boundary of a {self.blank.shape}", key=f"boundary[{i}].on",
+                raise InputError(f"unknown boundary of a {self.blank.shape}",
+                                 key=f"boundary[{i}].on",
                                  value=entry.on, expected="one of " + ", ".join(known))
         if self.picture_frame is not None:
             if self.picture_frame.angle not in self.history:
@@ -393,11 +400,12 @@ class JobConfig:
             raise InputError(f"too coarse: {extent / self.mesh.size:.2g} elements across the "
                              f"blank", key="mesh.size", value=self.mesh.size,
                              expected=f"at least {MIN_ELEMENTS_ACROSS} elements across the blank: "
-                                      f"mesh.size <= {what} / {MIN_ELEMENTS_ACROSS} = {largest:g} mm")
+                                      f"mesh.size <= {what} / {MIN_ELEMENTS_ACROSS} "
+                                      f"= {largest:g} mm")
 
 
     def _validate_forming(self):
-        from drape.forming import check_forming
+        from drape.forming.press import check_forming
         check_forming(self)
 
 
@@ -460,7 +468,7 @@ def load_job(path: str | Path, overrides: list[str] | None = None) -> Job:
     """Read, validate and resolve a job file (material, formulas); raises InputError.
     ``overrides`` are ``table.key=value`` strings applied before validation."""
     from drape.law.parameters import MaterialParameters, load_material
-    from drape.loading import Loading
+    from drape.fe.loading import Loading
 
     path = Path(path)
     data = apply_overrides(read_toml(path), overrides)
@@ -473,7 +481,8 @@ def load_job(path: str | Path, overrides: list[str] | None = None) -> Job:
         if not material_path.is_file():
             raise InputError("material file not found", source=str(path), key="material",
                              value=config.material,
-                             expected=f"a TOML file relative to {path.parent} (looked for {material_path})")
+                             expected=f"a TOML file relative to {path.parent} "
+                                      f"(looked for {material_path})")
         params = load_material(material_path)
     else:
         params = MaterialParameters()

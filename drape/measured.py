@@ -442,7 +442,7 @@ def _rms(a, b) -> float:
 def main(args, base, data: SeriesData) -> int:
     """`drape calibrate` on monotonic series: fit, then material.toml, calibration.csv/png."""
     from drape.calibrate import RESULT_FILES
-    from drape.folder import claim
+    from drape.io.folder import claim
     from drape.law.parameters import material_toml
 
     angle_range = parse_angle_range(args.angle_range)
@@ -458,8 +458,8 @@ def main(args, base, data: SeriesData) -> int:
     output.mkdir(parents=True, exist_ok=True)
     base_name = args.material or "the paper (drape defaults)"
     tau_range = float(np.ptp(result.tau)) or 1.0
-    note = (f"monotonic data (no unloading): only the outer surface's loading edge "
-            f"q + Sy_0 + alpha is fitted (odd powers in q, even powers in alpha); "
+    note = ("monotonic data (no unloading): only the outer surface's loading edge "
+            "q + Sy_0 + alpha is fitted (odd powers in q, even powers in alpha); "
             + (f"the {result.nested.n} inner surfaces keep the ratios of {base_name} "
                f"(Sy_k/Sy_0, a_k; h_k x {result.h_scale:.4g}, the ratio of the edges' rise)"
                if result.nested.n else "no inner surfaces (--surfaces 0)"))

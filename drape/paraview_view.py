@@ -87,7 +87,8 @@ def build(results, locking_angle, time=None, offscreen=False):
     reader = pv.Xdmf3ReaderS(registrationName="fields.xdmf", FileName=[path])
     values = reader.TimestepValues
     times = [float(v) for v in values] if len(values) else [0.0]
-    t = times[-1] if time is None else builtins.min(times, key=lambda value: builtins.abs(value - time))
+    t = times[-1] if time is None else builtins.min(times,
+                                                    key=lambda value: builtins.abs(value - time))
     if offscreen:
         # (in the GUI, under Xvfb at least, these block ParaView 5.11's --script)
         scene = pv.GetAnimationScene()
@@ -151,7 +152,8 @@ def build(results, locking_angle, time=None, offscreen=False):
         locked = builtins.sum(1 for i in range(shear.GetNumberOfTuples())
                      if builtins.abs(shear.GetValue(i)) >= locking_angle)
     caption = (f"{os.path.basename(os.path.abspath(results))}: t = {t:.4g}, "
-               f"largest shear angle magnitude {largest:.2f} deg, locking angle {locking_angle:g} deg "
+               f"largest shear angle magnitude {largest:.2f} deg, "
+               f"locking angle {locking_angle:g} deg "
                f"({locked} of {data.GetNumberOfCells()} cells past it)")
     text = pv.Text(registrationName="caption", Text=caption)
     label = pv.Show(text, view)

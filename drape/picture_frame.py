@@ -46,7 +46,8 @@ def parse_cycles(text: str) -> list[float]:
         amplitudes = [float(part) for part in text.split(",") if part.strip()]
     except ValueError:
         raise InputError("not a list of numbers", key="--cycles", value=text,
-                         expected="comma-separated amplitudes in degrees, e.g. 10,20,30,40,-40") from None
+                         expected="comma-separated amplitudes in degrees, "
+                                  "e.g. 10,20,30,40,-40") from None
     if not amplitudes or any(not math.isfinite(a) or a == 0 or abs(a) >= 90 for a in amplitudes):
         raise InputError("amplitudes must be non-zero and within (-90, 90) deg", key="--cycles",
                          value=text, expected="e.g. 10,20,30,40,-40")
@@ -94,13 +95,15 @@ def frame_force(tau, gamma_deg, side):
     F dd = power gives F = L tau cos(gamma) / (2 sin(pi/4 - gamma/2)). Arrays broadcast.
     """
     gamma = np.radians(np.asarray(gamma_deg, dtype=float))
-    return side * np.asarray(tau, dtype=float) * np.cos(gamma) / (2.0 * np.sin(0.25 * np.pi - 0.5 * gamma))
+    return (side * np.asarray(tau, dtype=float) * np.cos(gamma)
+            / (2.0 * np.sin(0.25 * np.pi - 0.5 * gamma)))
 
 
 def frame_tau(force, gamma_deg, side):
     """The inverse of :func:`frame_force`: tau (N/mm) from the frame force (N), |gamma| < 90."""
     gamma = np.radians(np.asarray(gamma_deg, dtype=float))
-    return 2.0 * np.asarray(force, dtype=float) * np.sin(0.25 * np.pi - 0.5 * gamma) / (side * np.cos(gamma))
+    return (2.0 * np.asarray(force, dtype=float) * np.sin(0.25 * np.pi - 0.5 * gamma)
+            / (side * np.cos(gamma)))
 
 
 # --- the driver --------------------------------------------------------------------------------
@@ -140,7 +143,8 @@ def write_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
         writer = csv.writer(stream)
         writer.writerow(names)
         for row in zip(*(columns[n] for n in names)):
-            writer.writerow([v if isinstance(v, (int, np.integer)) else repr(float(v)) for v in row])
+            writer.writerow([v if isinstance(v, (int, np.integer)) else repr(float(v))
+                             for v in row])
 
 
 def reversal_indices(angle) -> np.ndarray:
@@ -259,7 +263,7 @@ def add_arguments(parser) -> None:
 
 
 def main(args) -> int:
-    from drape.folder import claim
+    from drape.io.folder import claim
     if args.material is None:
         params = MaterialParameters()
         if args.surfaces is not None:

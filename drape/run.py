@@ -14,7 +14,7 @@ overwritten without --overwrite. See docs/fe-solver.md.
 Progress (rank 0 only, on stdout): on a terminal one redrawn line, a bar over the load factor t
 from 0 to 1 with the step, Newton iterations, step size, elapsed time and an estimate of the
 time left (the load still to go at the slower of the average pace and the last 3 steps';
-drape.progress); otherwise (a log file, a batch job, and always under mpirun) one plain line per
+drape.io.progress); otherwise (a log file, a batch job, and always under mpirun) one plain line per
 converged step; nothing with --quiet. Cutbacks and warnings get lines of their own. View the
 results with `drape view`.
 """
@@ -66,7 +66,7 @@ def main(args) -> int:
 
     from drape.errors import Interrupted, WriteFailed
     from drape.job import load_job
-    from drape.solver import parse_option
+    from drape.fe.solver import parse_option
 
     options = dict(parse_option(text) for text in args.petsc_option)
     job = load_job(args.config, overrides=args.set)
@@ -106,13 +106,13 @@ def resume_command(args, ranks: int) -> str:
 
 
 def step_progress(job, *, enabled: bool, stream=None):
-    """The progress display of `drape run` (drape.progress.Progress on stdout): a redrawn bar
+    """The progress display of `drape run` (drape.io.progress.Progress on stdout): a redrawn bar
     over the load factor on a terminal, one line per converged step otherwise (and always under
     mpirun), nothing when disabled; ``progress.on_step`` is run_job's on_step."""
     import os
     import sys
 
-    from drape.progress import Progress
+    from drape.io.progress import Progress
 
     progress = Progress(1.0, enabled=enabled, stream=stream if stream is not None else sys.stdout)
     if any(name in os.environ for name in ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMI_RANK")):
@@ -143,33 +143,47 @@ class RunSummary:
     timings: dict
 
 
+@dataclasses.dataclass
+class RunParts:
+    """What a run is made of, handed to the ``on_start`` hook (benchmarks and tests read it;
+    the run owns it)."""
+    job: object
+    problem: object      #: drape.fe.membrane.MembraneProblem
+    solver: object       #: drape.fe.solver.NewtonSolver
+    motion: object       #: drape.fe.constraints.PrescribedMotion
+    forming: object      #: drape.forming.press.Forming, or None for a flat job
+
+
 def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, log=None,
-            jit_params=None, resume=False, overwrite=False) -> RunSummary:
+            jit_params=None, resume=False, overwrite=False, on_start=None, on_attempt=None,
+            on_solve=None) -> RunSummary:
     """Run a loaded :class:`~drape.job.Job` on ``comm`` (default COMM_WORLD).
 
-    on_step(step_row, problem) is called on every rank after each converged step is written
-    (`drape run` shows its progress from there); log(text) gets the other messages (start,
-    warnings, cutbacks).
+    Hooks, each optional and called on every rank: on_start(RunParts) once the run is set up;
+    on_attempt(t) before each Newton attempt at load factor t; on_solve(solver, result) after
+    each Newton solve (a holder's re-solves too); on_step(step_row, problem) after each
+    converged step is written (`drape run` shows its progress from there). log(text) gets the
+    other messages (start, warnings, cutbacks).
     Raises RunFailed (results so far written) when a step does not converge, Interrupted on
     SIGTERM/SIGINT (after the checkpoint), InputError if the results folder holds results and
     neither ``overwrite`` (start over) nor ``resume`` (continue from its checkpoint) is given.
     """
     from mpi4py import MPI
 
-    from drape import bias_extension, frame_force
-    from drape.checkpoint import Checkpoints, rewind_outputs
-    from drape.constraints import PrescribedMotion
-    from drape.disk import Disk, estimate
+    from drape.reports import bias_extension, frame_force
+    from drape.io.checkpoint import Checkpoints, rewind_outputs
+    from drape.fe.constraints import PrescribedMotion
+    from drape.io.disk import Disk, estimate
     from drape.errors import InputError, Interrupted, RunFailed, WriteFailed
-    from drape.folder import claim
-    from drape.interrupt import StopRequest
+    from drape.io.folder import claim
+    from drape.io.interrupt import StopRequest
     from drape.law.nested_surface import NestedSurfaceLaw
-    from drape.loading import Loading
-    from drape.membrane import MembraneProblem
-    from drape.mesh import create_blank_mesh
-    from drape.oscillation import OSCILLATION_WARNING, ShearOscillation
-    from drape.output import FIELDS_FILE, STEPS_FILE, ResultsWriter
-    from drape.solver import NewtonSolver, run_load_steps
+    from drape.fe.loading import Loading
+    from drape.fe.membrane import MembraneProblem
+    from drape.fe.mesh import create_blank_mesh
+    from drape.io.writer import FIELDS_FILE, STEPS_FILE, ResultsWriter
+    from drape.fe.solver import NewtonSolver, run_load_steps
+    from drape.reports.oscillation import OSCILLATION_WARNING, ShearOscillation
 
     _quiet_jit_logging()
     comm = comm or MPI.COMM_WORLD
@@ -182,7 +196,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
     forming = None
     if config.process is not None:
-        from drape.forming import Forming
+        from drape.forming.press import Forming
         forming = Forming(job, comm, log=say)
     try:
         blank_mesh = create_blank_mesh(comm, config.blank, config.mesh,
@@ -208,7 +222,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     force_scale = job.params.mu * max(job.params.K1, job.params.K2) * math.sqrt(area)
     stop = StopRequest()
     solver = NewtonSolver(problem, config.solver, force_scale, petsc_options,
-                          interrupted=lambda: bool(stop.signal))
+                          interrupted=lambda: bool(stop.signal), on_solve=on_solve)
     rows, frame_rows = [], []
     ledger = {"external": 0.0, "regularisation": 0.0, "f": None, "g": None}
     checkpoints = Checkpoints(folder, problem, job, config.output.checkpoint_every, rows,
@@ -287,7 +301,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
             q = motion.conjugate_force(force, t, frame.angle)
             row["frame_force"] = (frame_force.from_conjugate_force(side, angle, q)
                                   if step > 0 else 0.0)
-            row["frame_force_from_tau"] = float(frame_force.closed_form(side, angle, row["tau_mean"]))
+            row["frame_force_from_tau"] = float(frame_force.closed_form(side, angle,
+                                                                        row["tau_mean"]))
             frame_rows.append({"step": step, "t": t, "angle_deg": angle, **{
                 k: row[k] for k in ("frame_force", "frame_force_from_tau", "tau_mean")}})
         if config.bias_extension is not None:
@@ -304,6 +319,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
     def attempt(t):
         stop_if_requested()
+        if on_attempt is not None:
+            on_attempt(t)
         # a step whose files would not fit on the disk: the run stops before solving it
         number = rows[-1]["step"] + 1
         disk.check(number, checkpoints.due(number))
@@ -342,6 +359,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         if on_step is not None:
             on_step(row, problem)
 
+    if on_start is not None:
+        on_start(RunParts(job, problem, solver, motion, forming))
     write_failure = None
     stop.install()
     try:
@@ -368,7 +387,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
         last = f"t = {rows[-1]['t']:.6g} (step {rows[-1]['step']})"
         if isinstance(failure, Interrupted):
             raise Interrupted(f"{failure} received; stopped after step {rows[-1]['step']} at "
-                              f"t = {rows[-1]['t']:.6g}: results{' and checkpoint' if saved else ''}"
+                              f"t = {rows[-1]['t']:.6g}: "
+                              f"results{' and checkpoint' if saved else ''}"
                               f" up to it are in {folder}") from None
         raise RunFailed(f"{failure}; results up to {last} are in {folder}"
                         f"{' (with a checkpoint)' if saved else ''}"
@@ -397,7 +417,7 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
 
 def write_failed(failure, writer, checkpoints, rows, folder):
-    """After a write failure (drape.disk): fields.xdmf back to its last complete step; a
+    """After a write failure (drape.io.disk): fields.xdmf back to its last complete step; a
     checkpoint of that step when the failure came before the step changed anything (a step
     that would not fit) and there is room for one (else the last good one is kept). Returns
     the WriteFailed to raise: the failure, what is kept, and whether a resume can follow."""
@@ -409,7 +429,7 @@ def write_failed(failure, writer, checkpoints, rows, folder):
         try:
             checkpoints.save_last(check_space=True)
         except WriteFailed:
-            from drape.disk import size
+            from drape.io.disk import size
             room = size(checkpoints.disk.checkpoint_bytes())
     kept = (f"; results up to step {rows[-1]['step']} (t = {rows[-1]['t']:.6g}) are kept in "
             f"{folder}")
@@ -429,7 +449,7 @@ def write_failed(failure, writer, checkpoints, rows, folder):
     return error
 
 
-#: what a run writes in its folder (drape.folder.claim refuses to overwrite them silently)
+#: what a run writes in its folder (drape.io.folder.claim refuses to overwrite them silently)
 RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
 #: removed with them by --overwrite
 ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "checkpoint.h5",

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from drape.tools import TriangleSurface
+from drape.forming.surfaces import TriangleSurface
 
 _counter = itertools.count()
 
@@ -90,7 +90,7 @@ def face_min_radius(tag: int, samples: int = 13) -> float:
 def size_for_radius(radius: float, chord_tolerance: float, elements_per_radius: float,
                     min_size: float, max_size: float) -> float:
     """The element size for a face whose smallest curvature radius is ``radius``:
-    h = min(sqrt(3 R s), R / n), clamped to [min_size, max_size] (docs/tools.md)."""
+    h = min(sqrt(3 R s), R / n), clamped to [min_size, max_size] (docs/contact.md)."""
     if not math.isfinite(radius):
         return max_size
     h = min(math.sqrt(3.0 * radius * chord_tolerance), radius / elements_per_radius)

@@ -63,7 +63,8 @@ def build_blank(gmsh, shape: str, *, length: float = 100.0, width: float = 100.0
     quads = cell == "quadrilateral"
     angle = yarn_angle % 90.0
     if shape == "rectangle":
-        if pattern == "aligned" and (math.isclose(angle, 0.0, abs_tol=1e-9) or math.isclose(angle, 90.0)):
+        if pattern == "aligned" and (math.isclose(angle, 0.0, abs_tol=1e-9)
+                                     or math.isclose(angle, 90.0)):
             names = _rectangle_grid(gmsh, length, width, size, quads)
         elif pattern == "aligned" and math.isclose(angle, 45.0):
             nodes, cells, sides = diamond_lattice(length, width, size)
@@ -71,7 +72,8 @@ def build_blank(gmsh, shape: str, *, length: float = 100.0, width: float = 100.0
                 cells = _split_quads(nodes, cells)
             names = _discrete(gmsh, nodes, cells, sides, quads)
         elif pattern == "aligned":
-            raise InputError("a yarn-aligned mesh of a rectangle needs yarns at a multiple of 45 deg",
+            raise InputError("a yarn-aligned mesh of a rectangle needs yarns at a multiple of "
+                             "45 deg",
                              key="blank.yarn_angle", value=yarn_angle,
                              expected="0, 90, 45 or -45, or mesh.pattern = \"free\" (not aligned: "
                                       "see the locking note in docs/fe-solver.md)")
@@ -216,7 +218,8 @@ def diamond_lattice(length: float, width: float, size: float):
     # the outline exactly, despite the round-off of s/6
     cells = np.array(quads, dtype=np.int64)
     sides = {}
-    for side, axis, value in (("bottom", 1, 0), ("top", 1, 12 * j), ("left", 0, 0), ("right", 0, 12 * i)):
+    for side, axis, value in (("bottom", 1, 0), ("top", 1, 12 * j), ("left", 0, 0),
+                              ("right", 0, 12 * i)):
         on = np.nonzero(key_array[:, axis] == value)[0]
         on = on[np.argsort(key_array[on, 1 - axis])]
         sides[side] = np.column_stack([on[:-1], on[1:]])
@@ -254,7 +257,8 @@ def _discrete(gmsh, nodes, cells, sides, quads, strip=None):
     curves = {}
     for name, segments in sides.items():
         curve = gmsh.model.addDiscreteEntity(1)
-        gmsh.model.mesh.addElementsByType(curve, _LINE, np.arange(next_tag, next_tag + len(segments)),
+        gmsh.model.mesh.addElementsByType(curve, _LINE,
+                                          np.arange(next_tag, next_tag + len(segments)),
                                           (segments + 1).ravel())
         next_tag += len(segments)
         curves[name] = [curve]
@@ -426,7 +430,8 @@ def clipped_lattice(outline: np.ndarray, yarn_angle: float, size: float, centre=
     hi = np.ceil(local.max(axis=0) / size + 1).astype(int)
     I, J = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
     ni, nj = I.shape
-    lattice = centre + ((I.ravel() + 0.5) * size)[:, None] * g1 + ((J.ravel() + 0.5) * size)[:, None] * g2
+    lattice = (centre + ((I.ravel() + 0.5) * size)[:, None] * g1
+               + ((J.ravel() + 0.5) * size)[:, None] * g2)
     if circle is not None:
         closest = lambda q: (circle - np.linalg.norm(q - centre, axis=1),      # noqa: E731
                              circle * np.mod(np.arctan2(q[:, 1] - centre[1], q[:, 0] - centre[0]),
@@ -521,7 +526,8 @@ def clipped_lattice(outline: np.ndarray, yarn_angle: float, size: float, centre=
 def _check_convex(nodes, quads):
     p = nodes[quads]
     e = np.roll(p, -1, axis=1) - p
-    cross = e[:, :, 0] * np.roll(e, -1, axis=1)[:, :, 1] - e[:, :, 1] * np.roll(e, -1, axis=1)[:, :, 0]
+    f = np.roll(e, -1, axis=1)
+    cross = e[:, :, 0] * f[:, :, 1] - e[:, :, 1] * f[:, :, 0]
     if (cross <= 0).any():
         raise InputError(f"{int(np.any(cross <= 0, axis=1).sum())} cell(s) between the yarn "
                          "lattice and the outline are not convex", key="mesh.size",

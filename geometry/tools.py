@@ -15,9 +15,10 @@ the punch above (lowest point at z = +gap) and moves down (-z) by the stroke. Ev
 its default and where it comes from are in ``docs/tools.md``.
 
 :func:`build_tools` meshes the tools with gmsh and returns one
-:class:`drape.tools.TriangleSurface` per tool (closed surface of the tool's solid, vertex
+:class:`drape.forming.surfaces.TriangleSurface` per tool (closed surface of the tool's solid, vertex
 normals pointing out of it); :func:`analytic_tools` gives the exact
-:class:`drape.tools.AxisymmetricSurface` of each hemisphere tool; :func:`write_tool_surfaces`
+:class:`drape.forming.surfaces.AxisymmetricSurface` of each hemisphere tool;
+:func:`write_tool_surfaces`
 writes tool surfaces to a file a user can open (VTK .vtu or gmsh .msh).
 """
 
@@ -33,8 +34,8 @@ import numpy as np
 
 from drape.config import from_mapping, non_negative, positive, read_toml, setting
 from drape.errors import InputError
-from drape.double_dome import SignedDistanceSurface, double_dome_surfaces
-from drape.tools import Arc, AxisymmetricSurface, Profile, Segment, TriangleSurface
+from drape.forming.double_dome import SignedDistanceSurface, double_dome_surfaces
+from drape.forming.surfaces import Arc, AxisymmetricSurface, Profile, Segment, TriangleSurface
 
 TOOL_NAMES = ("punch", "die", "holder")
 
@@ -403,7 +404,7 @@ def analytic_tools(cfg: HemisphereTools) -> dict[str, AxisymmetricSurface]:
 
 def analytic_double_dome_tools(cfg: DoubleDomeTools) -> dict[str, SignedDistanceSurface]:
     """Exact surfaces of the double-dome tools (no meshing): punch, die, holder, each the
-    opening of a sharp-edged core (drape.double_dome; docs/tools.md, "Exact double-dome
+    opening of a sharp-edged core (drape.forming.double_dome; docs/contact.md, "Exact double-dome
     tools"). The die and holder are unbounded outward and the punch has no top face: only the
     working faces are modelled."""
     try:

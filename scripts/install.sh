@@ -7,7 +7,11 @@
 #     dolfinx belongs to /usr/bin/python3) holding drape itself, editable, with no download.
 #
 # Idempotent: a second run checks and returns in about a second.
+#  3. The linter of the test command (scripts/run-tests.sh): ruff, pinned, from PyPI into the
+#     virtual environment (ruff is not a Debian package in bookworm).
+#
 # Environment: DRAPE_VENV (default: <repo>/.venv), DRAPE_EDITABLE=0 for a plain install,
+# DRAPE_LINT=0 to leave the linter out (an image that only runs jobs),
 # DRAPE_PARAVIEW=1 to add Debian's ParaView 5.11 and Xvfb for `drape view` (138 packages, about 800 MB
 # more, so not by default; tests/test_paraview.py installs them itself when missing).
 set -euo pipefail
@@ -63,6 +67,14 @@ if [ ! -f "$stamp" ] || [ "$repo/pyproject.toml" -nt "$stamp" ] \
   [ "${DRAPE_EDITABLE:-1}" = 0 ] && mode=()
   "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation --no-index "${mode[@]}" "$repo"
   touch "$stamp"
+fi
+
+# The linter, pinned: the same rules give the same verdict on every machine.
+ruff_version=0.16.9
+if [ "${DRAPE_LINT:-1}" = 1 ] \
+   && [ "$("$venv/bin/ruff" --version 2>/dev/null)" != "ruff $ruff_version" ]; then
+  echo "drape install: installing ruff $ruff_version into $venv"
+  "$venv/bin/python" -m pip install -q "ruff==$ruff_version"
 fi
 
 # Compile the law's kernel now (numba caches it beside the installed module: about 20 s once),

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Install what is needed (idempotent) and run the whole test suite: serially, then under
-# `mpirun -n 2` (tests marked `serial` are skipped there). Extra arguments go to pytest.
+# Install what is needed (idempotent), lint (ruff, config in pyproject.toml; a finding fails
+# the command) and run the whole test suite: serially, then under `mpirun -n 2` (tests marked
+# `serial` are skipped there). Extra arguments go to pytest.
 set -euo pipefail
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 "$repo/scripts/install.sh"
@@ -8,6 +9,9 @@ cd "$repo"
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 export OMPI_MCA_rmaps_base_oversubscribe=1
 python=.venv/bin/python
+
+echo "== lint (ruff check)"
+.venv/bin/ruff check --no-cache .
 
 echo "== tests, serial"
 "$python" -m pytest -q "$@"

@@ -38,7 +38,7 @@ FABRICS = {"plain-weave": "cao2008_fig28.csv", "balanced-twill": "cao2008_fig29.
 ANGLES = (10.0, 20.0, 30.0, 40.0)
 sys.path.insert(0, str(REPO))
 
-from drape.bias_extension import displacement_at_angle  # noqa: E402
+from drape.reports.bias_extension import displacement_at_angle  # noqa: E402
 
 
 def read_series(path: Path) -> dict[str, np.ndarray]:

@@ -124,7 +124,8 @@ def material(old: str, new: str) -> dict[str, str]:
     return {"job.toml": JOB, "material.toml": edit(MATERIAL, old, new)}
 
 
-def tools(old: str | None = None, new: str = "", text: str | None = None, **extra) -> dict[str, str]:
+def tools(old: str | None = None, new: str = "", text: str | None = None,
+          **extra) -> dict[str, str]:
     out = {"tools.toml": text if text is not None else edit(HEMISPHERE, old, new)}
     out.update(extra)
     return out
@@ -222,7 +223,8 @@ CASES: list[Case] = [
     Case("run-lattice-misfit", "a +-45 deg blank of 141 x 50 mm: gmsh is given no mesh to build",
          RUN, job(edit(JOB, "length = 100.0", "length = 141.0")), "job.toml", "blank.length",
          "141.0", "length/width = i/j with small integers"),
-    Case("run-nan", "`[steps] initial = nan`", RUN, job(edit(JOB, "initial = 0.05", "initial = nan")),
+    Case("run-nan", "`[steps] initial = nan`", RUN,
+         job(edit(JOB, "initial = 0.05", "initial = nan")),
          "job.toml", "steps.initial", "nan", "a finite number"),
     Case("run-huge", "`[blank] length = 1e300` (and width)", RUN,
          job(edit(edit(JOB, "length = 100.0", "length = 1e300"), "width = 50.0", "width = 5e299")),
@@ -240,12 +242,14 @@ CASES: list[Case] = [
          job(edit(JOB, "size = 10.0", "size = 10.0\ncell = \"hexahedron\"")), "job.toml",
          "mesh.cell", "'hexahedron'", "one of 'quadrilateral', 'triangle'"),
     Case("run-history-t", "`[history.d] t = [0, 0.6, 0.4, 1]`: not increasing", RUN,
-         job(edit(JOB, "values = [0.0, 15.0]", "values = [0.0, 5.0, 10.0, 15.0]\nt = [0, 0.6, 0.4, 1]")),
+         job(edit(JOB, "values = [0.0, 15.0]",
+                  "values = [0.0, 5.0, 10.0, 15.0]\nt = [0, 0.6, 0.4, 1]")),
          "job.toml", "history.d.t", "[0.0, 0.6, 0.4, 1.0]", "[0, ..., 1], strictly increasing"),
     Case("run-history-length", "`[history.d] t` with 3 entries for 2 values", RUN,
          job(edit(JOB, "values = [0.0, 15.0]", "values = [0.0, 15.0]\nt = [0, 0.5, 1]")),
          "job.toml", "history.d.t", "[0.0, 0.5, 1.0]", "one load factor per value"),
-    Case("run-formula-syntax", "`ux = \"d *\"`: does not parse", RUN, job(edit(JOB, 'ux = "d"', 'ux = "d *"')),
+    Case("run-formula-syntax", "`ux = \"d *\"`: does not parse", RUN,
+         job(edit(JOB, 'ux = "d"', 'ux = "d *"')),
          "job.toml", "boundary[1].ux", "'d *'", "a numpy expression in d, t, theta, x, y",
          ("not an expression",)),
     Case("run-formula-forbidden", "`ux = \"__import__('os')\"`: a forbidden name", RUN,
@@ -304,7 +308,8 @@ CASES: list[Case] = [
          "material.toml", "surfaces.a", None, "3 columns in a and h"),
     Case("material-wrong-type", "material: `K1 = \"stiff\"`", RUN,
          material("K1 = 10000.0", "K1 = \"stiff\""), "material.toml", "K1", "'stiff'", "a number"),
-    Case("material-negative", "material: `Ksh = -142`", RUN, material("Ksh = 142.0", "Ksh = -142.0"),
+    Case("material-negative", "material: `Ksh = -142`", RUN,
+         material("Ksh = 142.0", "Ksh = -142.0"),
          "material.toml", "Ksh", "-142.0", "a number > 0"),
     Case("material-misspelt", "material: `K_sh = 142` (misspelt Ksh)", RUN,
          material("Ksh = 142.0", "K_sh = 142.0"), "material.toml", "K_sh", None,
@@ -328,10 +333,12 @@ CASES: list[Case] = [
     # drape tools: tool configs
     Case("tools-missing", "a tool config that does not exist", ("tools", "nope.toml", "--check"),
          {}, "nope.toml", None, None, "the path of an existing TOML file"),
-    Case("tools-no-table", "a file without a `[tools]` table (`[tool]`)", ("tools", "tools.toml", "--check"),
+    Case("tools-no-table", "a file without a `[tools]` table (`[tool]`)",
+         ("tools", "tools.toml", "--check"),
          tools(text=HEMISPHERE.replace("[tools", "[tool")),
          "tools.toml", "tools", None, "a [tools] table", ("did you mean 'tool'?",)),
-    Case("tools-misspelt", "`punch_radus = 50` (misspelt punch_radius)", ("tools", "tools.toml", "--check"),
+    Case("tools-misspelt", "`punch_radus = 50` (misspelt punch_radius)",
+         ("tools", "tools.toml", "--check"),
          tools("punch_radius =", "punch_radus ="), "tools.toml", "tools.hemisphere.punch_radus",
          None, "one of the known keys", ("did you mean 'punch_radius'?",)),
     Case("tools-kind", "`kind = \"cone\"`", ("tools", "tools.toml", "--check"),
@@ -352,11 +359,14 @@ CASES: list[Case] = [
          tools(text='[tools]\nkind = "step"\n[tools.step.punch]\nfile = "punch.step"\n'),
          "tools.toml", "tools.step.punch.file", "'punch.step'", "the path of an existing STEP file",
          ("file not found",)),
-    Case("tools-not-step", "`punch.step` is a text file, not STEP", ("tools", "tools.toml", "--check"),
+    Case("tools-not-step", "`punch.step` is a text file, not STEP",
+         ("tools", "tools.toml", "--check"),
          tools(text='[tools]\nkind = "step"\n[tools.step.punch]\nfile = "punch.step"\n',
                **{"punch.step": "solid punch\nendsolid punch\n"}),
-         "tools.toml", "tools.step.punch.file", "'punch.step'", "a STEP file with at least one surface"),
-    Case("tools-step-none", "`kind = \"step\"` with no STEP file", ("tools", "tools.toml", "--check"),
+         "tools.toml", "tools.step.punch.file", "'punch.step'",
+         "a STEP file with at least one surface"),
+    Case("tools-step-none", "`kind = \"step\"` with no STEP file",
+         ("tools", "tools.toml", "--check"),
          tools(text='[tools]\nkind = "step"\n'), "tools.toml", "tools.step", None,
          "a [tools.step.punch] (or .die, .holder) table with file"),
     Case("tools-holder-control", "`[tools.step.holder] control = \"pressure\"`",
@@ -370,18 +380,22 @@ CASES: list[Case] = [
     # drape picture-frame
     Case("pf-cycles", "`--cycles 10,abc`", ("picture-frame", "--cycles", "10,abc"), {},
          "--cycles", None, "'10,abc'", "comma-separated amplitudes in degrees"),
-    Case("pf-cycles-range", "`--cycles 10,95`: beyond 90 deg", ("picture-frame", "--cycles", "10,95"),
+    Case("pf-cycles-range", "`--cycles 10,95`: beyond 90 deg",
+         ("picture-frame", "--cycles", "10,95"),
          {}, "--cycles", None, "'10,95'", "e.g. 10,20,30,40,-40", ("within (-90, 90) deg",)),
     Case("pf-increment", "`--increment=-0.1`", ("picture-frame", "--increment=-0.1"), {},
          "--increment", None, "-0.1", "a shear-angle increment > 0 in degrees"),
-    Case("pf-missing-material", "`--material nope.toml`", ("picture-frame", "--material", "nope.toml"),
+    Case("pf-missing-material", "`--material nope.toml`",
+         ("picture-frame", "--material", "nope.toml"),
          {}, "nope.toml", None, None, "the path of an existing TOML file", ("file not found",)),
     Case("pf-material-not-nested", "`--material` a file with non-nested surfaces",
          ("picture-frame", "--material", "material.toml"),
-         {"material.toml": edit(MATERIAL, "Sy = [0.0081, 0.006, 0.0025]", "Sy = [0.0081, 0.0081, 0.0025]")},
+         {"material.toml": edit(MATERIAL, "Sy = [0.0081, 0.006, 0.0025]",
+                                "Sy = [0.0081, 0.0081, 0.0025]")},
          "material.toml", "Sy", "[0.0081, 0.0081, 0.0025]", "Sy_0 > Sy_1 > ... > Sy_n > 0"),
     Case("pf-surfaces", "`--surfaces 3` for a material with 2 inner surfaces",
-         ("picture-frame", "--surfaces", "3"), {}, "--surfaces", None, "3", "an integer from 0 to 2"),
+         ("picture-frame", "--surfaces", "3"), {}, "--surfaces", None, "3",
+         "an integer from 0 to 2"),
     Case("pf-history", "`--history angles.csv` without a gamma_t_deg column",
          ("picture-frame", "--history", "angles.csv"), {"angles.csv": "angle\n1\n2\n"},
          "angles.csv", None, "['angle']", "a header line naming the column gamma_t_deg"),
@@ -389,17 +403,20 @@ CASES: list[Case] = [
     Case("cal-missing", "a measured curve that does not exist", ("calibrate", "nope.csv"), {},
          "nope.csv", None, None, "a CSV file", ("file not found",)),
     Case("cal-no-column", "a CSV without a tau column", ("calibrate", "curve.csv"),
-         {"curve.csv": CURVE.replace("tau", "stress")}, "curve.csv", None, "['gamma_t_deg', 'stress']",
+         {"curve.csv": CURVE.replace("tau", "stress")}, "curve.csv", None,
+         "['gamma_t_deg', 'stress']",
          "a CSV file with a header line naming gamma_t_deg and tau", ("no 'tau' column",)),
     Case("cal-not-number", "a CSV with `abc` in the tau column", ("calibrate", "curve.csv"),
          {"curve.csv": CURVE.replace("\n5,0.005\n", "\n5,abc\n")}, "curve.csv", None, "'abc'",
          "a finite number (N/mm)", ("line 7, column 'tau'",)),
     Case("cal-surfaces", "`--surfaces 9`", ("calibrate", "curve.csv", "--surfaces", "9"),
          {"curve.csv": CURVE}, "--surfaces", None, "9", "an integer from 0 to 6"),
-    Case("cal-rows", "`--rows 0,30,20`: not increasing", ("calibrate", "curve.csv", "--rows", "0,30,20"),
+    Case("cal-rows", "`--rows 0,30,20`: not increasing",
+         ("calibrate", "curve.csv", "--rows", "0,30,20"),
          {"curve.csv": CURVE}, "--rows", None, "'0,30,20'", "0 < b1 < b2 < ..."),
     Case("cal-frame-side", "`--frame-side=-100`", ("calibrate", "curve.csv", "--frame-side=-100"),
-         {"curve.csv": CURVE}, "--frame-side", None, "-100.0", "the side of the picture frame in mm"),
+         {"curve.csv": CURVE}, "--frame-side", None, "-100.0",
+         "the side of the picture frame in mm"),
     Case("cal-series", "`--series UT`: not a series of the file", ("calibrate", "pf.csv",
          "--series", "UT"), {"pf.csv": SERIES}, None, "--series", "'UT'",
          "series of pf.csv: HKUST, UN", ("unknown series",)),
@@ -524,7 +541,8 @@ def main(argv: list[str]) -> int:
             results = run_cases(Path(root))
         DOC.write_text(table(results))
         bad = [i for i, r in results.items() if r["code"] != 2]
-        print(f"wrote {DOC} ({len(results)} cases){'; not exit code 2: ' + ', '.join(bad) if bad else ''}")
+        print(f"wrote {DOC} ({len(results)} cases)"
+              f"{'; not exit code 2: ' + ', '.join(bad) if bad else ''}")
         return 0
     root, out, ids = Path(argv[0]), Path(argv[1]), argv[2:]
     r = rank()

@@ -5,7 +5,6 @@ drape's own builder), in their working positions, one solid per file."""
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 

@@ -1,5 +1,5 @@
 """Residuals, Jacobian actions and their central differences for a
-:class:`drape.membrane.MembraneProblem` (PETSc vectors; the problem's callbacks update x's
+:class:`drape.fe.membrane.MembraneProblem` (PETSc vectors; the problem's callbacks update x's
 ghosts themselves)."""
 
 

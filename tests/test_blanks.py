@@ -1,7 +1,7 @@
 """Disc and polygon blanks (geometry/blank.py's clipped yarn lattice, docs/blanks.md): the mesh
 keeps the yarns' alignment inside a strip along the outline; a disc and an octagon, 0/90,
 pressed to full stroke on a small hemisphere, give a shear field with the square's symmetries
-and no cell-to-cell oscillation; the oscillation measure itself (drape/oscillation.py).
+and no cell-to-cell oscillation; the oscillation measure itself (drape/reports/oscillation.py).
 
 The forming runs use a hemisphere scaled down (punch R 30 mm, die fillet 8 mm, so 6 mm elements
 are allowed: about 430 cells) and one run each feeds several assertions.
@@ -134,11 +134,11 @@ def test_a_polygon_off_the_die_opening_is_refused():
 def test_the_oscillation_measure_is_a_checkerboards_amplitude_and_blind_to_gradients():
     """On a 10 x 10 grid of unit squares: a checkerboard 5 +- 2 deg measures 2; any field
     linear in x and y measures 0 (to round-off); the outline's cells are left out."""
-    from drape.oscillation import cell_neighbours, oscillation
+    from drape.reports.oscillation import cell_neighbours, oscillation
     i, j = np.meshgrid(np.arange(10), np.arange(10), indexing="ij")
     i, j = i.ravel(), j.ravel()
-    corners = np.stack([np.column_stack([i + a, j + b]) for a, b in ((0, 0), (1, 0), (0, 1), (1, 1))],
-                       axis=1).astype(float)            # DOLFINx's tensor-product order
+    offsets = ((0, 0), (1, 0), (0, 1), (1, 1))          # DOLFINx's tensor-product order
+    corners = np.stack([np.column_stack([i + a, j + b]) for a, b in offsets], axis=1).astype(float)
     cells, neighbours = cell_neighbours(corners)
     assert len(cells) == 64
     assert oscillation(5.0 + 2.0 * (-1.0) ** (i + j), cells, neighbours) == pytest.approx(2.0)
@@ -154,7 +154,7 @@ def test_disc_and_octagon_reach_full_stroke_with_a_clean_field(formed):
     was 2.4 times theirs, 1 %, with the strip integrated at 2x2 points)."""
     from mpi4py import MPI
 
-    from drape.oscillation import OSCILLATION_WARNING
+    from drape.reports.oscillation import OSCILLATION_WARNING
     if MPI.COMM_WORLD.rank != 0:
         return
     name, job, summary, _ = formed

@@ -72,7 +72,8 @@ def test_frame_force_is_the_power_balance_of_the_sheared_square():
         return 0.5 * np.sin(g)    # C12 = sin g, C11 = C22 = 1
 
     # S = (tau/2)(G1G2 + G2G1): S:dE = 2 * (tau/2) * dE12
-    power_per_dgamma = side ** 2 * 2 * (tau / 2) * (green_lagrange_12(gamma + h) - green_lagrange_12(gamma - h)) / (2 * h)
+    power_per_dgamma = side ** 2 * 2 * (tau / 2) * (green_lagrange_12(gamma + h)
+                                                    - green_lagrange_12(gamma - h)) / (2 * h)
     d_diagonal = (diagonal(gamma + h) - diagonal(gamma - h)) / (2 * h)
     expected = power_per_dgamma / d_diagonal
     assert np.allclose(frame_force(tau, np.degrees(gamma), side), expected, rtol=1e-7)
@@ -125,7 +126,8 @@ def test_one_surface_truth_is_recovered_by_stage_1(tmp_path):
     history, clean, noisy = noisy_data(truth)
     write_curve(tmp_path / "data.csv", history, noisy)
     out = tmp_path / "fit"
-    assert main(["calibrate", str(tmp_path / "data.csv"), "--surfaces", "0", "--output", str(out)]) == 0
+    assert main(["calibrate", str(tmp_path / "data.csv"), "--surfaces", "0", "--output",
+                 str(out)]) == 0
     fitted = load_material(out / "material.toml")
     assert fitted.n == 0 and len(fitted.Q) == 8 and fitted.Ksh == truth.Ksh
     assert relative_rms(fitted, truth, TRAIN_CYCLES) < 0.005
@@ -154,7 +156,8 @@ def test_force_data_through_the_frame_side_gives_the_same_fit(tmp_path):
     tau_a = drive(a, history)["tau"]
     assert cal.rms(drive(b, history)["tau"], tau_a) < 1e-6 * np.ptp(tau_a)
     # the force of a frame twice as large read with this side: tau twice as large
-    write_curve(tmp_path / "force_wrong.csv", history, frame_force(noisy, history, 2 * side), "force")
+    write_curve(tmp_path / "force_wrong.csv", history, frame_force(noisy, history, 2 * side),
+                "force")
     assert main(["calibrate", str(tmp_path / "force_wrong.csv"), "--surfaces", "0", "--frame-side",
                  f"{side}", "--output", str(tmp_path / "wrong")]) == 0
     c = load_material(tmp_path / "wrong" / "material.toml")

@@ -34,11 +34,13 @@ def test_every_help_exits_0_and_documents_options_and_exit_codes():
     from drape.cli import SUBCOMMANDS, build_parser
     top = drape("--help")
     assert top.returncode == 0, top.stderr
-    for code, meaning in (("0", "success"), ("2", "bad input"), ("1", "a run that failed after it started")):
+    for code, meaning in (("0", "success"), ("2", "bad input"),
+                          ("1", "a run that failed after it started")):
         assert re.search(rf"^\s*{code}\s+{meaning}", top.stdout, re.M), (code, top.stdout)
     parser = build_parser()
     subparsers = next(a for a in parser._actions if a.dest == "command").choices
-    assert set(subparsers) == set(SUBCOMMANDS) == {"picture-frame", "run", "calibrate", "tools", "view"}
+    assert set(subparsers) == set(SUBCOMMANDS) == {"picture-frame", "run", "calibrate",
+                                                   "tools", "view"}
     for name in SUBCOMMANDS:
         assert name in top.stdout
         done = drape(name, "--help")
@@ -103,7 +105,8 @@ def test_run_progress_bar_on_a_terminal():
     text = stream.getvalue()
     assert text.startswith("\r[######..................]  25.0% step 1: load 0.25/1 (+0.25), "
                            "4 Newton iterations")
-    assert "\nstep 2: no convergence at t = 0.75, cut back\n\r[############............]  50.0%" in text
+    assert ("\nstep 2: no convergence at t = 0.75, cut back\n"
+            "\r[############............]  50.0%") in text
     assert text.endswith("\n")
     silent = Terminal()
     off = step_progress(job, enabled=False, stream=silent)

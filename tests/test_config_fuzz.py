@@ -179,7 +179,7 @@ def attempt(folder, doc) -> str:
         if not cells <= MESH_CELLS:
             return "loaded"
         if cells > START_CELLS:
-            from drape.mesh import create_blank_mesh
+            from drape.fe.mesh import create_blank_mesh
             create_blank_mesh(MPI.COMM_SELF, job.config.blank, job.config.mesh)
             return "meshed"
         from drape.run import run_job

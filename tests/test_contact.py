@@ -1,4 +1,5 @@
-"""The contact law (drape.contact): penalty normal traction and regularised Coulomb friction.
+"""The contact law (drape.forming.contact): penalty normal traction and regularised Coulomb
+friction.
 
 Tangents against central differences of the traction itself (normal, stick and slip regimes,
 plain and smoothed penalty), Coulomb's bound and direction, continuity at the end of the stick
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 from drape.config import from_mapping
-from drape.contact import (SEPARATED, SLIP, STICK, ContactParameters, gap_for_pressure,
+from drape.forming.contact import (SEPARATED, SLIP, STICK, ContactParameters, gap_for_pressure,
                            normal_pressure, penetration_report, propose_penalty, traction)
 from drape.errors import InputError
 

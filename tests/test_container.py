@@ -43,7 +43,8 @@ pytestmark = [pytest.mark.serial, pytest.mark.slow, pytest.mark.timeout(3600)]
 
 CACHE = REPO / "build" / "container"
 MIRROR = os.environ.get("DRAPE_DEBIAN_MIRROR", "http://deb.debian.org/debian")
-SECURITY_MIRROR = os.environ.get("DRAPE_DEBIAN_SECURITY_MIRROR", "http://deb.debian.org/debian-security")
+SECURITY_MIRROR = os.environ.get("DRAPE_DEBIAN_SECURITY_MIRROR",
+                                 "http://deb.debian.org/debian-security")
 #: the environment `docker run` and `docker build` start from (before the Dockerfile's ENV)
 DOCKER_BASE_ENV = {"PATH": "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin",
                    "HOME": "/root", "HOSTNAME": "drape-chroot"}
@@ -146,7 +147,8 @@ def copy_context(context: Path, source: str, destination: Path) -> int:
     """COPY source destination: a file, or a folder's contents, filtered by .dockerignore."""
     patterns = dockerignore_patterns(context)
     source_path = (context / source).resolve()
-    assert source_path == context or context in source_path.parents, f"COPY {source}: outside the context"
+    assert source_path == context or context in source_path.parents, \
+        f"COPY {source}: outside the context"
     copied = 0
     if source_path.is_file():
         destination.parent.mkdir(parents=True, exist_ok=True)
@@ -200,7 +202,8 @@ def base_tarball() -> Path:
     try:
         run_host(["debootstrap", "--variant=minbase", "bookworm", str(work / "root"), MIRROR],
                  stdout=subprocess.DEVNULL)
-        run_host(["tar", "-C", str(work / "root"), "--numeric-owner", "-cf", str(work / "base.tar"), "."])
+        run_host(["tar", "-C", str(work / "root"), "--numeric-owner", "-cf", str(work / "base.tar"),
+                  "."])
         os.replace(work / "base.tar", tarball)
         stamp.write_text(json.dumps(wanted))
     finally:
@@ -275,7 +278,8 @@ class Image:
         self.entrypoint: list[str] = []
         self.cmd: list[str] = []
 
-    def build(self, dockerfile: Path, context: Path, log: Path, apt_cache: Path) -> dict[str, float]:
+    def build(self, dockerfile: Path, context: Path, log: Path,
+              apt_cache: Path) -> dict[str, float]:
         seconds = {}
         instructions = parse_dockerfile(dockerfile)
         assert instructions[0] == ("FROM", "debian:bookworm"), instructions[0]
@@ -285,7 +289,8 @@ class Image:
                 self.env.update(parse_env(arguments, self.env))
             elif keyword == "WORKDIR":
                 path = expand(arguments, self.env)
-                self.workdir = path if path.startswith("/") else f"{self.workdir.rstrip('/')}/{path}"
+                self.workdir = (path if path.startswith("/")
+                                else f"{self.workdir.rstrip('/')}/{path}")
                 (self.root / self.workdir.lstrip("/")).mkdir(parents=True, exist_ok=True)
             elif keyword == "COPY":
                 words = shlex.split(expand(arguments, self.env))
@@ -304,7 +309,8 @@ class Image:
                 for volume in self.volumes:
                     (self.root / volume.lstrip("/")).mkdir(parents=True, exist_ok=True)
             elif keyword in ("ENTRYPOINT", "CMD"):
-                assert arguments.startswith("["), f"{keyword}: only the exec (JSON) form is understood"
+                assert arguments.startswith("["), \
+                    f"{keyword}: only the exec (JSON) form is understood"
                 setattr(self, keyword.lower(), json.loads(arguments))
             elif keyword == "LABEL":
                 pass
@@ -314,7 +320,8 @@ class Image:
             seconds[f"{keyword} {arguments[:40]}"] = time.perf_counter() - started
         return seconds
 
-    def run(self, args: list[str], log: Path, volumes: dict[str, Path], entrypoint=None, check=True):
+    def run(self, args: list[str], log: Path, volumes: dict[str, Path], entrypoint=None,
+            check=True):
         """`docker run [--entrypoint E] -v host:volume image args`."""
         argv = (self.entrypoint if entrypoint is None else [entrypoint]) + (args or self.cmd)
         return in_root(self.root, argv, self.env, self.workdir, binds=volumes, log=log, check=check)
@@ -358,8 +365,9 @@ def test_dockerfile_builds_and_runs_drape_in_a_bookworm_chroot(tmp_path):
         # the image's installation is a plain (not editable) one, in its own venv
         venv_python = root / "opt/drape/venv/bin/python"
         assert venv_python.exists()
-        assert not (root / "opt/drape/venv/lib/python3.11/site-packages/__editable__.drape-0.1.0.pth").exists()
-        assert list((root / "opt/drape/venv/lib/python3.11/site-packages/drape").glob("calibrate.py"))
+        site_packages = root / "opt/drape/venv/lib/python3.11/site-packages"
+        assert not (site_packages / "__editable__.drape-0.1.0.pth").exists()
+        assert list((site_packages / "drape").glob("calibrate.py"))
 
         # `docker run --rm -v results:/results drape picture-frame ...`
         t = time.perf_counter()
@@ -376,7 +384,8 @@ def test_dockerfile_builds_and_runs_drape_in_a_bookworm_chroot(tmp_path):
         inside, host = read_columns(produced), read_columns(host_output / "picture_frame.csv")
         assert inside.keys() == host.keys() and inside["tau"].size == 40
         for name in host:
-            np.testing.assert_allclose(inside[name], host[name], rtol=1e-12, atol=1e-15, err_msg=name)
+            np.testing.assert_allclose(inside[name], host[name], rtol=1e-12, atol=1e-15,
+                                       err_msg=name)
         assert np.ptp(inside["tau"]) > 0.01
 
         # `docker run --rm drape --help` (the default CMD) works through the entry point
@@ -393,7 +402,8 @@ def test_dockerfile_builds_and_runs_drape_in_a_bookworm_chroot(tmp_path):
         ranks = re.findall(r"rank (\d) of 2: (\d+) of (\d+) cells", out)
         assert sorted(r[0] for r in ranks) == ["0", "1"], out[-3000:]
         assert all(int(total) == 128 for _, _, total in ranks)
-        assert sum(int(local) for _, local, _ in ranks) == 128 and all(int(l) > 0 for _, l, _ in ranks)
+        assert (sum(int(local) for _, local, _ in ranks) == 128
+                and all(int(l) > 0 for _, l, _ in ranks))
 
         # FE job: `docker run --rm -v results:/results --entrypoint mpirun drape -n 2 drape run ...`
         if FE_JOB is not None:

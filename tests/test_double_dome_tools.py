@@ -1,4 +1,5 @@
-"""The exact double-dome tools (drape.double_dome, geometry.tools.analytic_double_dome_tools).
+"""The exact double-dome tools (drape.forming.double_dome,
+geometry.tools.analytic_double_dome_tools).
 
 Against independent expectations: the closed form of the construction (double_dome_height,
 also for the core eroded by the edge radius), points built at a known distance from the
@@ -15,7 +16,7 @@ import pytest
 
 from drape.geometry.tools import (DoubleDomeTools, ToolMeshing, analytic_double_dome_tools,
                                   build_tools, double_dome_height)
-from drape.tools import MeshedSurface, TriangleSurface
+from drape.forming.surfaces import MeshedSurface, TriangleSurface
 from tool_helpers import chord_bound
 
 CFG = DoubleDomeTools(gap=0.5)     # a nonzero gap: every height depends on it

@@ -1,7 +1,7 @@
 """configs/bias_extension.toml: a 100 x 50 mm blank, yarns at +-45 deg, left end clamped, right
 end pulled by d. Inextensible yarns give three zones: undeformed next to the clamps, gamma/2
 along the free edges, gamma in the centre with gamma = pi/2 - 2 acos((D + d)/(sqrt 2 D)),
-D = length - width. Also: which meshes lock (docs/fe-solver.md, "Shear locking")."""
+D = length - width. Also: which meshes lock (docs/fe-results.md, "Shear locking")."""
 
 import math
 
@@ -29,7 +29,8 @@ def mean_abs_shear(comm, problem, centre, radius):
 
 
 def run(comm, folder, overrides=()):
-    job = load_job(CONFIGS / "bias_extension.toml", overrides=list(overrides) + ["output.xdmf=false"])
+    job = load_job(CONFIGS / "bias_extension.toml",
+                   overrides=list(overrides) + ["output.xdmf=false"])
     records = []
 
     def on_step(row, problem):
@@ -82,7 +83,8 @@ def test_which_meshes_lock(comm, shared_tmp):
         print(f"\nbias extension at d = {d} mm, kinematic central shear {gamma:.2f} deg")
         print(f"{'mesh':<26}{'centre (deg)':>14}{'force (N)':>12}{'yarn strain':>13}")
         for (cell, pattern), r in results.items():
-            print(f"{pattern + ' ' + cell:<26}{r['centre']:>14.2f}{r['force']:>12.2f}{r['strain']:>13.2e}")
+            print(f"{pattern + ' ' + cell:<26}{r['centre']:>14.2f}{r['force']:>12.2f}"
+                  f"{r['strain']:>13.2e}")
     reference = results["quadrilateral", "aligned"]
     for cell in ("quadrilateral", "triangle"):
         aligned, free = results[cell, "aligned"], results[cell, "free"]

@@ -55,7 +55,7 @@ def run_and_terminate(folder, ranks=1):
     finished process's return code and stderr. Under mpirun the ranks get the SIGTERM, as from
     a batch system that signals every process of a job: mpirun itself answers a SIGTERM with
     SIGCONT, a SIGTERM to the ranks only after odls_base_sigkill_timeout (1 s) and SIGKILL 1 s
-    later (docs/fe-solver.md, "Signals")."""
+    later (docs/fe-results.md, "Signals")."""
     process = subprocess.Popen(command("run", CONFIGS / "bias_extension.toml", "--output", folder,
                                        *SHORT, ranks=ranks),
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
@@ -156,7 +156,8 @@ def test_sigterm_then_resume_gives_the_uninterrupted_result(tmp_path, ranks):
     other = 2 if ranks == 1 else 1
     wrong = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT, "--resume",
                   ranks=other)
-    assert wrong.returncode == 2 and f"written by {ranks} rank(s), this run has {other}" in wrong.stderr
+    assert (wrong.returncode == 2
+            and f"written by {ranks} rank(s), this run has {other}" in wrong.stderr)
 
     done = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT, "--resume",
                  ranks=ranks)
@@ -214,13 +215,15 @@ def test_results_are_not_overwritten_silently(tmp_path):
         assert again.returncode == 2, again.stderr
         lines = [line for line in again.stderr.splitlines() if line.startswith("drape")]
         assert len(lines) == 1 and "Traceback" not in again.stderr
-        assert "already holds results (checkpoint.npz, fields.xdmf, result.npz, steps.csv)" in lines[0]
+        assert ("already holds results (checkpoint.npz, fields.xdmf, result.npz, steps.csv)"
+                in lines[0])
         assert "--overwrite" in lines[0] and "--resume" in lines[0]
     over = drape(*args, "--overwrite")
     assert over.returncode == 0, over.stderr
     assert len(read_steps(folder)) == 15
     # nothing to resume in an empty folder
-    empty = drape("run", CONFIGS / "bias_extension.toml", "--output", tmp_path / "empty", "--resume")
+    empty = drape("run", CONFIGS / "bias_extension.toml", "--output", tmp_path / "empty",
+                  "--resume")
     assert empty.returncode == 2 and "nothing to resume" in empty.stderr
 
     pf = ["picture-frame", "--cycles", "5", "--increment", "1", "--output", tmp_path / "pf"]
@@ -263,6 +266,7 @@ def run_with_nan(comm, folder, monkeypatch, *, law_calls=None, residual_calls=No
     from drape.run import run_job
 
     count = {"law": 0, "residual": 0}
+    forms = {}
     law_calls = law_calls or (lambda n: False)
     residual_calls = residual_calls or (lambda n: False)
     update, assemble = NestedSurfaceLaw.update, fpetsc.assemble_vector
@@ -276,7 +280,7 @@ def run_with_nan(comm, folder, monkeypatch, *, law_calls=None, residual_calls=No
 
     def poisoned_assemble(*args, **kwargs):
         result = assemble(*args, **kwargs)
-        if len(args) == 2:    # the residual (into b), not the internal force
+        if args[-1] is forms.get("residual"):   # Newton's residual, not the internal force
             count["residual"] += 1
             if comm.rank == 0 and residual_calls(count["residual"]):
                 args[0].array[:] = np.inf
@@ -285,7 +289,8 @@ def run_with_nan(comm, folder, monkeypatch, *, law_calls=None, residual_calls=No
     monkeypatch.setattr(NestedSurfaceLaw, "update", poisoned_update)
     monkeypatch.setattr(fpetsc, "assemble_vector", poisoned_assemble)
     return run_job(load_job(CONFIGS / "bias_extension.toml", overrides=NAN_JOB), comm,
-                   output=folder)
+                   output=folder, on_start=lambda run: forms.update(
+                       residual=run.problem.residual_form))
 
 
 @pytest.mark.parametrize("where", ["law", "residual"])
@@ -326,7 +331,7 @@ def test_a_signal_during_a_newton_attempt_ends_it_there(comm, shared_tmp, monkey
     remaining iterations; the run stops after the last converged step (Interrupted)."""
     from drape.errors import Interrupted
     from drape.job import load_job
-    from drape.membrane import MembraneProblem
+    from drape.fe.membrane import MembraneProblem
     from drape.run import run_job
 
     calls = []

@@ -6,7 +6,6 @@ from the partition-independent result.npz); bad input is exit code 2 and a faile
 import os
 import subprocess
 import sys
-import textwrap
 
 import numpy as np
 import pytest
@@ -93,15 +92,18 @@ def test_one_and_two_ranks_give_the_same_results(tmp_path, config):
 
 def test_bad_input_is_exit_code_2_with_one_line(tmp_path):
     bad = tmp_path / "bad.toml"
-    bad.write_text((CONFIGS / "bias_extension.toml").read_text().replace("[mesh]", "[mesh]\nsise = 3"))
+    bad.write_text((CONFIGS / "bias_extension.toml").read_text()
+                   .replace("[mesh]", "[mesh]\nsise = 3"))
     cases = [
         (["run", bad], "key 'mesh.sise'", "did you mean 'size'"),
         (["run", tmp_path / "missing.toml"], "missing.toml", "file not found"),
-        (["run", CONFIGS / "bias_extension.toml", "--set", "blank.length=141"], "key 'blank.length'",
+        (["run", CONFIGS / "bias_extension.toml", "--set", "blank.length=141"],
+         "key 'blank.length'",
          "does not fit a +-45 deg yarn lattice"),
         (["run", CONFIGS / "bias_extension.toml", "--set", "mesh.size=0.01"], "key 'mesh.size'",
          "elements"),
-        (["run", CONFIGS / "bias_extension.toml", "--set", "steps.cutback=1.5"], "key 'steps.cutback'",
+        (["run", CONFIGS / "bias_extension.toml", "--set", "steps.cutback=1.5"],
+         "key 'steps.cutback'",
          "(0.0, 1.0)"),
     ]
     for args, where, what in cases:

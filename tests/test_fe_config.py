@@ -1,4 +1,4 @@
-"""The job config of `drape run` (drape.job, drape.loading) and the step logic (drape.solver):
+"""The job config of `drape run` (drape.job, drape.fe.loading) and the step logic (drape.fe.solver):
 validation with clear errors, formulas, histories, load steps and cutbacks. No DOLFINx here."""
 
 import math
@@ -10,8 +10,8 @@ import pytest
 from conftest import CONFIGS
 from drape.errors import InputError, RunFailed
 from drape.job import StepsConfig, key_table, load_job
-from drape.loading import Formula, Loading, VARIABLES
-from drape.solver import SolveResult, next_load, parse_option, run_load_steps
+from drape.fe.loading import Formula, Loading, VARIABLES
+from drape.fe.solver import SolveResult, next_load, parse_option, run_load_steps
 
 
 def write(tmp_path, text, name="job.toml"):
@@ -89,7 +89,8 @@ def test_formulas_are_restricted(tmp_path, formula, problem):
 
 
 def test_history_and_boundary_rules(tmp_path):
-    error = error_of(tmp_path, MINIMAL.replace("values = [0.0, 1.0]", "values = [0.0, 1.0]\nt = [0.0, 0.5]"))
+    error = error_of(tmp_path,
+                     MINIMAL.replace("values = [0.0, 1.0]", "values = [0.0, 1.0]\nt = [0.0, 0.5]"))
     assert error.key == "history.d.t" and "increasing from 0 to 1" in error.message
     error = error_of(tmp_path, MINIMAL.replace('on = "right"', 'on = "edge"'))
     assert error.key == "boundary[1].on" and "left, right, bottom, top, boundary" in error.expected
@@ -135,14 +136,16 @@ def test_picture_frame_formulas_are_eq_25():
     loading = Loading.from_config(job.config)
     xy = np.array([[0.0, 0.0], [100.0, 0.0], [37.0, 100.0]])
     theta = math.radians(30.0)
-    G1, G2 = np.array([math.cos(theta), math.sin(theta)]), np.array([-math.sin(theta), math.cos(theta)])
+    G1 = np.array([math.cos(theta), math.sin(theta)])
+    G2 = np.array([-math.sin(theta), math.cos(theta)])
     for t in (0.02, 0.3, 0.9):
         g = math.radians(loading.histories["angle"](t))
         F = math.cos(g / 2) * np.eye(2) + math.sin(g / 2) * (np.outer(G1, G2) + np.outer(G2, G1))
         expected = xy @ (F - np.eye(2)).T
         entry = loading.prescribed[0]
         for i in range(2):
-            assert np.allclose(loading.evaluate(entry.components[i], xy, t), expected[:, i], atol=1e-12)
+            assert np.allclose(loading.evaluate(entry.components[i], xy, t), expected[:, i],
+                               atol=1e-12)
         assert np.all(loading.evaluate(entry.components[2], xy, t) == 0.0)
 
 
@@ -162,7 +165,7 @@ def test_formula_namespace():
     assert value[0] == pytest.approx(1 + 4 + 0.5 + 1 + math.pi)
 
 
-# --- load steps ------------------------------------------------------------------------------------
+# --- load steps -----------------------------------------------------------------------------------
 
 def test_next_load_lands_on_breakpoints_in_equal_steps():
     points = np.array([0.25, 0.5, 1.0])

@@ -243,7 +243,7 @@ def test_a_failed_hdf5_write_keeps_the_last_step(comm, small_disk, monkeypatch):
     same WriteFailed; steps.csv and fields.xdmf end with the step before; the checkpoint of an
     earlier step is readable; after space is freed the resume ends as the run never stopped
     (in this process, on this pass's ranks)."""
-    from drape.disk import Disk
+    from drape.io.disk import Disk
     from drape.errors import WriteFailed
     from drape.job import load_job
     from drape.run import run_job
@@ -256,7 +256,7 @@ def test_a_failed_hdf5_write_keeps_the_last_step(comm, small_disk, monkeypatch):
                                                           "output.checkpoint_every=2"])
     check = Disk.check
     monkeypatch.setattr(Disk, "check", lambda self, *args, **kwargs: None)
-    # this process keeps the failed fields.h5 open (drape.output._abandon), locked for h5py
+    # this process keeps the failed fields.h5 open (drape.io.writer._abandon), locked for h5py
     monkeypatch.setenv("HDF5_USE_FILE_LOCKING", "FALSE")
     with pytest.raises(WriteFailed) as caught:
         run_job(job, comm, output=folder)
@@ -287,7 +287,7 @@ def test_resume_onto_another_partition(comm, shared_tmp, monkeypatch):
     import dolfinx.cpp as cpp
     import dolfinx.io.gmshio as gmshio
 
-    from drape import checkpoint
+    from drape.io import checkpoint
     from drape.errors import Interrupted
     from drape.job import load_job
     from drape.run import run_job

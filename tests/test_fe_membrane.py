@@ -1,4 +1,4 @@
-"""The membrane problem (drape/membrane.py): the Jacobian is the derivative of the residual
+"""The membrane problem (drape/fe/membrane.py): the Jacobian is the derivative of the residual
 (the law's consistent tangent, yarn tension and the geometric stiffness, in 3D), point
 contributions enter both as documented, and the regularisation shows up in its own column."""
 
@@ -12,14 +12,14 @@ import pytest
 from drape.job import BlankConfig, MeshConfig, load_job
 from drape.law.nested_surface import LawState, NestedSurfaceLaw
 from drape.law.parameters import MaterialParameters
-from drape.membrane import PointContribution
+from drape.fe.membrane import PointContribution
 from fe_helpers import central_difference, jacobian_action, residual
 
 
 def _problem(comm, cell="quadrilateral", yarn_angle=0.0, pattern="aligned", contributions=None,
              damping=1e-3, bending=0.0, size=10.0, length=40.0, width=30.0, inertia=False):
-    from drape.membrane import MembraneProblem
-    from drape.mesh import create_blank_mesh
+    from drape.fe.membrane import MembraneProblem
+    from drape.fe.mesh import create_blank_mesh
     blank = BlankConfig(length=length, width=width, yarn_angle=yarn_angle)
     bm = create_blank_mesh(comm, blank, MeshConfig(cell=cell, pattern=pattern, size=size))
     law = NestedSurfaceLaw(MaterialParameters())
@@ -29,12 +29,13 @@ def _problem(comm, cell="quadrilateral", yarn_angle=0.0, pattern="aligned", cont
 
 def _set_displacement(problem, shear_deg=15.0):
     """A homogeneous shear (plastic everywhere from the virgin state) plus a smooth 3D wave."""
-    V = problem.V
     g = math.radians(shear_deg)
 
     def field(x):
-        return np.vstack([(math.cos(g / 2) - 1) * x[0] + math.sin(g / 2) * x[1] + 0.3 * np.sin(x[1] / 7),
-                          math.sin(g / 2) * x[0] + (math.cos(g / 2) - 1) * x[1] + 0.2 * np.cos(x[0] / 9),
+        return np.vstack([(math.cos(g / 2) - 1) * x[0] + math.sin(g / 2) * x[1]
+                          + 0.3 * np.sin(x[1] / 7),
+                          math.sin(g / 2) * x[0] + (math.cos(g / 2) - 1) * x[1]
+                          + 0.2 * np.cos(x[0] / 9),
                           2.0 * np.sin(x[0] / 11) * np.cos(x[1] / 13)])
     problem.u.interpolate(field)
     problem.u.x.scatter_forward()
@@ -143,7 +144,8 @@ def test_point_contributions_enter_residual_and_jacobian(comm):
     direction.array[:] = np.random.default_rng(comm.rank).standard_normal(direction.array.shape)
     jd = jacobian_action(spring, x, direction)
     jd.axpy(-1.0, jacobian_action(plain, x, direction))
-    K = fpetsc.assemble_matrix(fem.form(ufl.derivative(k * gap * v[2] * dx, u, ufl.TrialFunction(spring.V))))
+    K = fpetsc.assemble_matrix(fem.form(ufl.derivative(k * gap * v[2] * dx, u,
+                                                       ufl.TrialFunction(spring.V))))
     K.assemble()
     kd = K.createVecLeft()
     K.mult(direction, kd)
@@ -243,7 +245,8 @@ def test_bending_energy_of_a_cylinder_is_the_plate_energy(comm, cell):
         assert energy == pytest.approx(plate, rel=(size / R) ** 2)
     problem = _problem(comm, cell, bending=B, size=5.0, damping=0.0)
     th = math.radians(35.0)
-    rotation = np.array([[1, 0, 0], [0, math.cos(th), -math.sin(th)], [0, math.sin(th), math.cos(th)]])
+    rotation = np.array([[1, 0, 0], [0, math.cos(th), -math.sin(th)],
+                         [0, math.sin(th), math.cos(th)]])
     problem.u.interpolate(lambda x: (rotation @ x) - x + np.array([[3.0], [-2.0], [5.0]]))
     problem.u.x.scatter_forward()
     assert abs(problem.bending_energy()) < 1e-12
@@ -296,7 +299,7 @@ def test_newtons_shear_tangent_is_stiffened_only_near_neutral_loading():
     nothing. The points come from the law itself: sheared to 3 deg (plastic), committed, then
     loaded on by 1e-7 and by 1e-2 in C12, and unloaded by 1e-5 (within the innermost
     surface: elastic)."""
-    from drape.membrane import neutral_loading_tangent
+    from drape.fe.membrane import neutral_loading_tangent
     law = NestedSurfaceLaw(MaterialParameters())
     one = np.ones(3)
     state = LawState.virgin(3, law.n)

@@ -1,4 +1,4 @@
-"""Blank meshes (geometry/blank.py, drape/mesh.py): areas, named boundaries, yarn alignment,
+"""Blank meshes (geometry/blank.py, drape/fe/mesh.py): areas, named boundaries, yarn alignment,
 conformity of the +-45 deg diamond lattice, and clear errors for meshes that cannot be built."""
 
 import math
@@ -19,7 +19,8 @@ def _edges(cells):
     return unique, counts
 
 
-@pytest.mark.parametrize("length, width, size", [(100.0, 50.0, 4.5), (150.0, 60.0, 7.0), (50.0, 50.0, 3.0)])
+@pytest.mark.parametrize("length, width, size",
+                         [(100.0, 50.0, 4.5), (150.0, 60.0, 7.0), (50.0, 50.0, 3.0)])
 def test_diamond_lattice_is_conforming_and_fills_the_rectangle(length, width, size):
     nodes, cells, sides = diamond_lattice(length, width, size)
     x, y = nodes[cells, 0], nodes[cells, 1]
@@ -75,7 +76,7 @@ def _measure(blank_mesh, name=None):
 @pytest.mark.parametrize("yarn_angle, cell", [(0.0, "quadrilateral"), (90.0, "triangle"),
                                                (45.0, "quadrilateral"), (-45.0, "triangle")])
 def test_aligned_rectangles(comm, yarn_angle, cell):
-    from drape.mesh import create_blank_mesh
+    from drape.fe.mesh import create_blank_mesh
     blank = BlankConfig(length=100.0, width=50.0, yarn_angle=yarn_angle)
     bm = create_blank_mesh(comm, blank, MeshConfig(cell=cell, size=6.0))
     assert bm.mesh.topology.cell_type.name == cell
@@ -85,7 +86,7 @@ def test_aligned_rectangles(comm, yarn_angle, cell):
 
 
 def test_free_meshes_and_the_aligned_disc(comm):
-    from drape.mesh import create_blank_mesh
+    from drape.fe.mesh import create_blank_mesh
     bm = create_blank_mesh(comm, BlankConfig(length=80.0, width=30.0, yarn_angle=30.0),
                            MeshConfig(pattern="free", cell="quadrilateral", size=5.0))
     assert _measure(bm) == pytest.approx(2400.0, rel=1e-12)
@@ -101,9 +102,11 @@ def test_free_meshes_and_the_aligned_disc(comm):
     cells = msh.geometry.dofmap.array.reshape(-1, 4)[:n]
     x = msh.geometry.x[:, :2]
     central = cells[np.all(np.abs((x[cells] @ [math.cos(math.radians(theta + 45)),
-                                                math.sin(math.radians(theta + 45))])) < 10.0, axis=1)
+                                                math.sin(math.radians(theta + 45))])) < 10.0,
+                           axis=1)
                     & np.all(np.abs((x[cells] @ [math.cos(math.radians(theta - 45)),
-                                                  math.sin(math.radians(theta - 45))])) < 10.0, axis=1)]
+                                                  math.sin(math.radians(theta - 45))])) < 10.0,
+                             axis=1)]
     # dolfinx quadrilateral vertices 0 1 / 2 3 (tensor order): edges 0-1, 0-2, 1-3, 2-3
     edges = x[central[:, [1, 2, 3, 3]]] - x[central[:, [0, 0, 1, 2]]]
     angle = np.degrees(np.arctan2(edges[..., 1], edges[..., 0])) % 90.0
@@ -113,11 +116,12 @@ def test_free_meshes_and_the_aligned_disc(comm):
 
 @pytest.mark.parametrize("blank, mesh, key", [
     (BlankConfig(length=100.0, width=50.0, yarn_angle=30.0), MeshConfig(), "blank.yarn_angle"),
-    (BlankConfig(length=100.0 * math.sqrt(2), width=50.0, yarn_angle=45.0), MeshConfig(), "blank.length"),
+    (BlankConfig(length=100.0 * math.sqrt(2), width=50.0, yarn_angle=45.0), MeshConfig(),
+     "blank.length"),
     (BlankConfig(length=1000.0, width=1000.0), MeshConfig(size=0.1), "mesh.size"),
 ])
 def test_meshes_that_cannot_be_built_are_input_errors_on_every_rank(comm, blank, mesh, key):
-    from drape.mesh import create_blank_mesh
+    from drape.fe.mesh import create_blank_mesh
     with pytest.raises(InputError) as caught:
         create_blank_mesh(comm, blank, mesh)
     assert caught.value.key == key

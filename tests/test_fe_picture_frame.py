@@ -5,14 +5,12 @@ FE's own converged steps, and the frame force measured from the boundary's virtu
 be the closed form a tau cos(pi/4 - gamma/2) of that tau."""
 
 import csv
-import math
 import xml.etree.ElementTree as ET
 
 import numpy as np
-import pytest
 
 from conftest import CONFIGS
-from drape.frame_force import closed_form
+from drape.reports.frame_force import closed_form
 from drape.job import load_job
 from drape.picture_frame import drive
 from drape.run import run_job

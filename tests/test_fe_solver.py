@@ -9,13 +9,15 @@ from conftest import CONFIGS
 from drape.job import load_job
 from drape.run import run_job
 
-SHORT = ["output.xdmf=false", "history.d.values=[0.0, 3.0]", "steps.initial=0.1", "steps.maximum=0.25"]
+SHORT = ["output.xdmf=false", "history.d.values=[0.0, 3.0]", "steps.initial=0.1",
+         "steps.maximum=0.25"]
 
 
 def test_iterative_solver_matches_the_direct_one(comm, shared_tmp):
     results = {}
     for linear in ("direct", "iterative"):
-        job = load_job(CONFIGS / "bias_extension.toml", overrides=SHORT + [f"solver.linear={linear}"])
+        job = load_job(CONFIGS / "bias_extension.toml",
+                       overrides=SHORT + [f"solver.linear={linear}"])
         summary = run_job(job, comm, output=shared_tmp / linear)
         results[linear] = [(r["t"], r["right_Fx"]) for r in summary.rows]
     direct, iterative = np.array(results["direct"]), np.array(results["iterative"])
@@ -51,11 +53,37 @@ def test_the_jacobian_is_a_block_matrix_only_under_lu_with_mumps():
     preconditioner cuts through the 3x3 blocks or does not take them (field split, GAMG, a
     Cholesky)."""
     from drape.job import SolverConfig
-    from drape.solver import default_options, jacobian_matrix_type
+    from drape.fe.solver import default_options, jacobian_matrix_type
     direct = default_options(SolverConfig(linear="direct"), 1.0)
     assert jacobian_matrix_type(direct) == "baij"
-    assert jacobian_matrix_type({**direct, "ksp_type": "gmres", "snes_lag_preconditioner": "-2"}) == "baij"
+    assert jacobian_matrix_type({**direct, "ksp_type": "gmres",
+                                 "snes_lag_preconditioner": "-2"}) == "baij"
     assert jacobian_matrix_type(default_options(SolverConfig(linear="iterative"), 1.0)) is None
     assert jacobian_matrix_type({**direct, "pc_type": "gamg"}) is None
     assert jacobian_matrix_type({**direct, "pc_type": "cholesky"}) is None
     assert jacobian_matrix_type({**direct, "pc_factor_mat_solver_type": "petsc"}) is None
+
+
+def test_run_hooks_see_every_attempt_solve_and_step(comm, shared_tmp):
+    """The hooks benchmarks use instead of patching: on_start once with the run's parts;
+    on_attempt before each Newton attempt, on_solve after it (no holder: one solve each);
+    on_step once per converged step, with the row steps.csv gets. A step cut back counts one
+    attempt more than it has rows."""
+    calls = {"start": [], "attempt": [], "solve": [], "step": []}
+    job = load_job(CONFIGS / "bias_extension.toml", overrides=SHORT)
+    summary = run_job(
+        job, comm, output=shared_tmp / "hooked",
+        on_start=lambda run: calls["start"].append(run),
+        on_attempt=lambda t: calls["attempt"].append(t),
+        on_solve=lambda newton, result: calls["solve"].append(result),
+        on_step=lambda row, problem: calls["step"].append(row))
+    rows = summary.rows[1:]                      # step 0 is the unloaded state, not solved
+    (run,) = calls["start"]
+    assert run.forming is None and run.problem is run.solver.problem
+    assert calls["step"] == rows
+    cutbacks = sum(row["cutbacks"] for row in rows)
+    assert len(calls["attempt"]) == len(rows) + cutbacks == len(calls["solve"])
+    assert [r.converged for r in calls["solve"]].count(True) == len(rows)
+    assert [r.iterations for r in calls["solve"] if r.converged] == [
+        row["newton_iterations"] for row in rows]
+    assert calls["attempt"][-1] == pytest.approx(1.0)

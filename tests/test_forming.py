@@ -1,4 +1,4 @@
-"""Forming jobs (drape/forming.py): the hemisphere's shear field and its symmetries, what a
+"""Forming jobs (drape/forming/press.py): the hemisphere's shear field and its symmetries, what a
 forming run writes, penetration, the force-controlled holder, the double dome starting.
 
 The runs are short (the punch 5 mm down on the coarsest mesh the tools allow): the default
@@ -99,7 +99,7 @@ def test_the_forming_jacobian_is_the_derivative_of_the_residual(shared_tmp):
       the differences' to 1e-4 (measured 2.1e-5);
     - the whole blank moved 1 mm along x: within 2e-2 (measured 8.8e-3). This is what the
       contact tangent leaves out, the turning of the tool's normal (p dn/du,
-      drape/contact.py, docs/benchmarks.md)."""
+      drape/forming/contact.py, docs/benchmarks.md)."""
     from mpi4py import MPI
     from petsc4py import PETSc
 
@@ -184,7 +184,7 @@ def test_draw_in_between_two_nodes_is_the_edge_interpolated_there(comm):
     interpolation is exact: 2 mm at y = 0, with nodes at y = +-2.5 giving 1.75 and 2.25); the
     corner (100, 100), a node, moves in along the diagonal by its own value. Under mpirun the
     nodes are dealt out between the ranks, the two beside the mid-side on different ranks."""
-    from drape.forming_output import edge_draw_in
+    from drape.forming.reports import edge_draw_in
     y = np.append(np.arange(-97.5, 100.0, 5.0), 100.0)   # nodes at +-2.5 beside y = 0
     X = np.column_stack([np.full_like(y, 100.0), y])
     u = np.zeros((y.size, 3))
@@ -246,8 +246,9 @@ def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp):
 def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_tmp):
     """The hemisphere configs stiffen Newton's shear tangent (towards the elastic one) at law
     points loaded only just past their elastic range (solver.neutral_loading_band,
-    drape.membrane.neutral_loading_tangent). Only the Jacobian changes, so on the same load
-    steps (5 mm in fixed 0.5 mm steps), both converged to 1e-10, the run with the band and the one with the consistent tangent
+    drape.fe.membrane.neutral_loading_tangent). Only the Jacobian changes, so on the same load
+    steps (5 mm in fixed 0.5 mm steps), both converged to 1e-10, the run with the band and the
+    one with the consistent tangent
     everywhere must reach the same state: every step's forces within 1e-6 of the holder force
     and the shear field within 1e-6 of its peak. And the band must have acted: at the last
     step some points carry the stiffened tangent, sqrt(2 mu Ksh * consistent)."""
@@ -265,7 +266,8 @@ def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_
             stiffened["points"] = int(changed.sum())
             stiffened["plastic"] = bool(np.all(p.response.active_surface[changed] >= 0))
             stiffened["error"] = float(np.max(np.abs(
-                used[changed] / np.sqrt(p.law.two_mu_ksh * consistent[changed]) - 1.0), initial=0.0))
+                used[changed] / np.sqrt(p.law.two_mu_ksh * consistent[changed]) - 1.0),
+                initial=0.0))
 
     from mpi4py import MPI
     job, band = run("hemisphere.toml", shared_tmp / "band", fixed, on_step=look)
@@ -309,8 +311,8 @@ def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
 
 def test_hemisphere_45_on_a_disc_is_the_0_90_field_turned(tmp_path):
     """On a disc blank (an outline with no direction, unlike the square) the tools are
-    axisymmetric and the yarn-aligned clipped lattice turns with the yarns, so the +-45 problem is the
-    0/90 one turned by 45 degrees, mesh included: the shear fields agree point by point to
+    axisymmetric and the yarn-aligned clipped lattice turns with the yarns, so the +-45 problem is
+    the 0/90 one turned by 45 degrees, mesh included: the shear fields agree point by point to
     Newton's tolerance."""
     from mpi4py import MPI
     comm = MPI.COMM_WORLD
@@ -356,12 +358,13 @@ def test_hemisphere_45_square_has_the_0_90_symmetry_turned(tmp_path):
 
 
 class FlatDie:
-    """The plane z = 0, material below: gap z, normal +z (drape.tools' query interface)."""
+    """The plane z = 0, material below: gap z, normal +z (drape.forming.surfaces' query
+    interface)."""
 
     name = "die"
 
     def query(self, points, offset=None, cutoff=None):
-        from drape.tools import ContactQuery
+        from drape.forming.surfaces import ContactQuery
         z = points[:, 2] - (0.0 if offset is None else offset[2])
         normal = np.tile([0.0, 0.0, 1.0], (len(points), 1))
         return ContactQuery(z, normal, points * [1.0, 1.0, 0.0])
@@ -408,8 +411,8 @@ def test_the_holder_is_moved_until_its_force_is_within_one_percent(offset, slope
     measured, the next ones by a secant step, or, once the force has been seen on both sides
     of F, inside that bracket, until the force is within 1 % of F; the iterations of all the
     solves add up, and a re-solve that fails fails the attempt with F' as it was."""
-    from drape.forming import HOLDER_TOLERANCE, Forming, HolderControl
-    from drape.solver import SolveResult
+    from drape.forming.press import HOLDER_TOLERANCE, Forming, HolderControl
+    from drape.fe.solver import SolveResult
     F = 200.0
     holder = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1)
     flange = stand_in_flange(holder, lambda target: offset + slope * target)
@@ -437,8 +440,8 @@ def test_the_holder_keeps_the_solve_closest_to_its_force_when_the_moves_are_spen
     all seven solves."""
     from types import SimpleNamespace
 
-    from drape.forming import HOLDER_CORRECTIONS, Forming, HolderControl
-    from drape.solver import SolveResult
+    from drape.forming.press import HOLDER_CORRECTIONS, Forming, HolderControl
+    from drape.fe.solver import SolveResult
     assert HOLDER_CORRECTIONS == 6
     F = 200.0
     holder = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1)
@@ -479,8 +482,8 @@ def test_the_holder_comes_down_from_the_wrinkles_onto_the_flange():
     secant's, from their slope, lands on the flange, 453 N above F; from there every target
     lies inside the bracket, and the sixth re-solve lands on F (F' = 14). The secant alone
     (three moves) kept a solve 14.3 N off."""
-    from drape.forming import HOLDER_TOLERANCE, Forming, HolderControl
-    from drape.solver import SolveResult
+    from drape.forming.press import HOLDER_TOLERANCE, Forming, HolderControl
+    from drape.fe.solver import SolveResult
     F = 500.0
 
     def force(target):
@@ -509,8 +512,8 @@ def test_the_holder_lifts_as_far_as_its_force_needs():
     midway between die and holder carries F' (each face at the gap where the smoothed penalty
     gives F'/A); below F_min = 1e-3 F the holder keeps lifting with the plain penalty's slope
     2/(eps_N A), so d is continuous and increasing in F' whatever F' the control asks for."""
-    from drape.contact import normal_pressure
-    from drape.forming import HolderControl
+    from drape.forming.contact import normal_pressure
+    from drape.forming.press import HolderControl
     F, A, eps, g0 = 500.0, 2.0e4, 17.8, 0.375
     holder = HolderControl(F, area=A, penalty=eps, smoothing=g0)
 
@@ -536,8 +539,8 @@ def test_friction_has_memory_so_the_step_size_does_not_matter(steps):
     total slip S it is -mu p min(S / delta, 1) however many steps S took (the slip held in the
     stick zone carries over from step to step); dragged back by 1.5 delta after sliding, it
     is +mu p / 2 (sliding left the elastic slip at +delta); off the tool it forgets."""
-    from drape.contact import normal_pressure
-    from drape.forming import ToolContact
+    from drape.forming.contact import normal_pressure
+    from drape.forming.press import ToolContact
     mu, delta, eps = 0.3, 0.05, 100.0
     contact = ToolContact({"die": FlatDie()}, set(), 0.0, eps, mu, delta, cutoff=10.0)
     p = float(normal_pressure(np.array([-0.01]), eps, 0.0)[0][0])
@@ -607,12 +610,12 @@ def test_double_dome_configs_press_to_full_stroke(tmp_path, config):
     must agree within 5 % and lie at mirror images, in the same element or the next (the
     peak's region is flat to 1 % over an element, and the branch a wrinkle picks can move the
     top of it to the neighbouring quadrature point, 7.46 mm away). 0/90: the largest shear
-    lies where a kinematic drape of the same ply on the die (drape.kinematic, a force-free
+    lies where a kinematic drape of the same ply on the die (drape.forming.kinematic, a force-free
     method) shears most, at the corners of the domes (its kinematic percentile > 90)."""
-    from drape.forming import full_stroke
+    from drape.forming.press import full_stroke
     from drape.geometry.tools import analytic_double_dome_tools
     from drape.job import load_job
-    from drape.kinematic import compare_peaks, drape_fishnet
+    from drape.forming.kinematic import compare_peaks, drape_fishnet
     from drape.run import run_job
     job = load_job(CONFIGS / config)
     run_job(job, output=str(tmp_path))
@@ -673,7 +676,7 @@ def test_inertia_of_a_motion_quadratic_in_time_is_exact(steps):
     dtau^2. The first step has none."""
     from types import SimpleNamespace
 
-    from drape.forming import Forming
+    from drape.forming.press import Forming
     from drape.job import ProcessConfig
     stroke, process = 40.0, ProcessConfig(areal_density=1.3, punch_speed=2.0, punch_ramp=8.0)
     rng = np.random.default_rng(5)

@@ -1,4 +1,5 @@
-"""Kinematic draping (drape.kinematic, the fishnet): no shear on developable moulds (a plane, a
+"""Kinematic draping (drape.forming.kinematic, the fishnet): no shear on developable moulds (a
+plane, a
 cylinder, yarns along it or at 45 deg to it: they unroll without shear), the square's symmetry
 and the diagonal lobes on a sphere, and the double dome's shear where the finite-element runs
 put it (docs/forming.md compares them at full stroke)."""
@@ -6,8 +7,8 @@ put it (docs/forming.md compares them at full stroke)."""
 import numpy as np
 import pytest
 
-from drape.kinematic import drape_fishnet
-from drape.tools import ContactQuery
+from drape.forming.kinematic import drape_fishnet
+from drape.forming.surfaces import ContactQuery
 
 
 class Cylinder:
@@ -90,7 +91,7 @@ def test_a_sphere_shears_on_the_diagonals_with_the_squares_symmetry():
 def test_compare_peaks_finds_agreement_and_disagreement():
     """A map that is the kinematic one (plus noise) peaks where the drape shears most (rank
     correlation near 1); one peaking on the generators instead does not."""
-    from drape.kinematic import compare_peaks
+    from drape.forming.kinematic import compare_peaks
     drape = drape_fishnet(Sphere(50.0), (0.0, 0.0, 1.0), 0.0, 2.0, 20)
     rng = np.random.default_rng(3)
     points = rng.uniform(-38.0, 38.0, (3000, 2))

@@ -295,7 +295,8 @@ def test_degenerate_law_is_iwan_with_masing_unloading(h):
     # unloading from the reversal point (tau_r, gp_r): gp_r - gp = 2 g((tau_r - tau) / 2)
     tau_r, gp_r = tau[-1], gp[-1]
     C12_r = np.sin(np.radians(loading[-1]))
-    C12_end = np.sin(gp_r - 2 * iwan_virgin_gamma_p(0.999 * sy[0], sy, h)) - 0.999 * sy[0] / law.two_mu_ksh
+    C12_end = (np.sin(gp_r - 2 * iwan_virgin_gamma_p(0.999 * sy[0], sy, h))
+               - 0.999 * sy[0] / law.two_mu_ksh)
     unloading = np.degrees(np.arcsin(np.linspace(C12_r, C12_end, 400)[1:]))
     law_state = state
     branch_tau, branch_gp = [], []

@@ -58,7 +58,8 @@ RUNS = {
 def paraview():
     if shutil.which("pvpython") is None:
         if os.geteuid() != 0:
-            pytest.skip("ParaView missing and not root: apt-get install -y " + " ".join(APT_PACKAGES))
+            pytest.skip("ParaView missing and not root: apt-get install -y "
+                        + " ".join(APT_PACKAGES))
         apt = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
         subprocess.run(["apt-get", "update", "-q"], check=True, env=apt, capture_output=True)
         subprocess.run(["apt-get", "install", "-y", "-q", "--no-install-recommends",
@@ -86,7 +87,8 @@ def runs(tmp_path_factory):
     folders = {}
     for name, (config, overrides, ranks, _) in RUNS.items():
         folder = root / name
-        done = drape("run", CONFIGS / config, "--output", folder, "--quiet", *overrides, ranks=ranks)
+        done = drape("run", CONFIGS / config, "--output", folder, "--quiet", *overrides,
+                     ranks=ranks)
         assert done.returncode == 0, done.stderr
         folders[name] = folder
     return folders
@@ -119,7 +121,8 @@ def law_points(points, cells):
             continue
         gauss, weights = [], []
         for s, r in ((-g, -g), (g, -g), (-g, g), (g, g)):
-            n = 0.25 * np.array([(1 - s) * (1 - r), (1 + s) * (1 - r), (1 + s) * (1 + r), (1 - s) * (1 + r)])
+            n = 0.25 * np.array([(1 - s) * (1 - r), (1 + s) * (1 - r), (1 + s) * (1 + r),
+                                 (1 - s) * (1 + r)])
             dn_ds = 0.25 * np.array([-(1 - r), 1 - r, 1 + r, -(1 + r)])
             dn_dr = 0.25 * np.array([-(1 - s), -(1 + s), 1 + s, 1 - s])
             jac = np.column_stack([dn_ds @ p, dn_dr @ p])
@@ -149,7 +152,8 @@ def test_xdmf_opens_in_paraview_with_drape_numbers(paraview, runs, tmp_path, nam
     seen = dump(paraview, tmp_path / "dump.json", "xdmf", folder / "fields.xdmf")
     rows = steps_csv(folder)
     snapshot = np.load(folder / "result.npz")
-    written = [row for i, row in enumerate(rows) if int(row["step"]) % every == 0 or i == len(rows) - 1]
+    written = [row for i, row in enumerate(rows)
+               if int(row["step"]) % every == 0 or i == len(rows) - 1]
     for reader in READERS:
         view = seen[reader]
         # the written steps, as ParaView's time steps
@@ -181,7 +185,8 @@ def test_xdmf_opens_in_paraview_with_drape_numbers(paraview, runs, tmp_path, nam
                 expected.append(weights @ values / weights.sum())
             scale = max(1.0, np.abs(expected).max())
             # float32 of the values; float32 coordinates move the law's points by ~1e-5 mm
-            assert np.abs(np.asarray(last[field][1]) - expected).max() <= 4 * F32 * scale, (reader, field)
+            error = np.abs(np.asarray(last[field][1]) - expected).max()
+            assert error <= 4 * F32 * scale, (reader, field)
         largest = np.abs(snapshot["gamma_t_deg"]).max()
         assert np.abs(last["shear_angle_deg"][1]).max() <= largest * (1 + F32)
         assert abs(largest - written[-1]["max_shear_angle_deg"]) < 1e-12

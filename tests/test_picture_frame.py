@@ -24,7 +24,8 @@ def read_columns(path):
 def test_cyclic_history_goes_to_each_amplitude_and_back_in_equal_increments():
     history = cyclic_history([10, -4], 1.5)
     legs = [np.linspace(0, 10, 8)[1:], np.linspace(10, 0, 8)[1:],
-            np.linspace(0, -4, 4)[1:], np.linspace(-4, 0, 4)[1:]]   # ceil(10/1.5) = 7, ceil(4/1.5) = 3
+            np.linspace(0, -4, 4)[1:],
+            np.linspace(-4, 0, 4)[1:]]   # ceil(10/1.5) = 7, ceil(4/1.5) = 3
     np.testing.assert_allclose(history, np.concatenate(legs), rtol=0, atol=1e-12)
     assert parse_cycles("10, 20,-40") == [10.0, 20.0, -40.0]
     for bad in ("10,abc", "0", "95", ""):
@@ -39,7 +40,8 @@ def run_cli(*args):
 
 @pytest.mark.serial
 def test_history_file_rows_are_exactly_the_increments(tmp_path):
-    angles = np.concatenate([np.linspace(0, 25, 11)[1:], [24.0, 12.5, -3.0], np.linspace(-3, 35, 7)[1:]])
+    angles = np.concatenate([np.linspace(0, 25, 11)[1:], [24.0, 12.5, -3.0],
+                             np.linspace(-3, 35, 7)[1:]])
     history = tmp_path / "history.csv"
     history.write_text("gamma_t_deg\n" + "\n".join(repr(a) for a in angles) + "\n")
     run = run_cli("--history", history, "--output", tmp_path / "out")
@@ -58,14 +60,16 @@ def test_history_file_rows_are_exactly_the_increments(tmp_path):
     np.testing.assert_array_equal(out["table_row"], [0] * 10 + [1] * 3 + [1] * 6)
     assert np.all(out["branch_surface"] <= 2) and out["branch_surface"][-1] == 0
     single = read_columns(tmp_path / "out" / "picture_frame_one_surface.csv")
-    np.testing.assert_array_equal(single["tau"], drive(MaterialParameters().with_surfaces(0), angles)["tau"])
+    np.testing.assert_array_equal(single["tau"],
+                                  drive(MaterialParameters().with_surfaces(0), angles)["tau"])
     png = (tmp_path / "out" / "picture_frame.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20000
 
 
 @pytest.mark.serial
 def test_cycles_equal_the_same_history_given_as_a_file(tmp_path):
-    run = run_cli("--cycles", "10,-15", "--increment", "0.5", "--surfaces", "0", "--output", tmp_path / "a")
+    run = run_cli("--cycles", "10,-15", "--increment", "0.5", "--surfaces", "0", "--output",
+                  tmp_path / "a")
     assert run.returncode == 0, run.stderr
     assert not (tmp_path / "a" / "picture_frame_one_surface.csv").exists()   # nothing to compare
     a = read_columns(tmp_path / "a" / "picture_frame.csv")

@@ -4,7 +4,7 @@ import io
 
 import pytest
 
-from drape.progress import Progress, _duration
+from drape.io.progress import Progress, _duration
 
 
 class FakeClock:

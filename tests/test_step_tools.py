@@ -56,7 +56,7 @@ def test_a_bad_holder_control_is_refused_with_the_key_and_the_choices(cad):
 
 def test_a_force_controlled_step_holder_needs_a_die(cad):
     from drape.errors import InputError
-    from drape.forming import check_forming, holder_mode
+    from drape.forming.press import check_forming, holder_mode
     job = load(cad / "hemisphere_step.toml")
     assert holder_mode(job.config) == "force"                  # the default
     assert holder_mode(load(cad / "position" / "hemisphere_step.toml").config) == "position"
@@ -77,9 +77,9 @@ def test_the_step_holders_flat_face_is_the_built_in_holders_ring(cad, comm):
     points but for a band of the fillet's own tolerance (1 degree of its 5 mm radius: r from
     69.91 to 70 mm, and the points at 70 mm by round-off); the opening between holder and die
     is 0 (both faces at z = 0)."""
-    from drape.forming import holder_region, pinch_region
+    from drape.forming.press import holder_region, pinch_region
     from drape.geometry.tools import build_tools, load_tools_config
-    from drape.tools import MeshedSurface
+    from drape.forming.surfaces import MeshedSurface
     tools = load_tools_config(cad / "hemisphere_step.toml", "tools")
     surfaces = {name: MeshedSurface(s) for name, s in build_tools(tools, comm=comm).items()}
     rng = np.random.default_rng(3)
@@ -105,7 +105,7 @@ def test_the_step_holders_flat_face_is_the_built_in_holders_ring(cad, comm):
 def test_a_holder_force_more_than_five_percent_off_is_a_warning_with_the_step():
     """Forming.control_holder after converged steps measuring 200, 209.9 (4.95 % off) and
     211 N (5.5 %) of F = 200 N: one warning, naming step 3 and both forces."""
-    from drape.forming import Forming, HolderControl
+    from drape.forming.press import Forming, HolderControl
     said = []
     holder = HolderControl(200.0, area=1000.0, penalty=1.0, smoothing=0.1)
     forming = SimpleNamespace(holder=holder, process=SimpleNamespace(holder_force=200.0),
@@ -128,7 +128,7 @@ def test_candidate_lists_give_the_exact_closest_points_as_points_move(cutoff):
     cutoff is the brute-force closest point over all triangles (distance and point) and the
     plain search's answer (gap, normal), farther ones stay above the cutoff; most points are
     answered from their lists."""
-    from drape.tools import MeshedSurface
+    from drape.forming.surfaces import MeshedSurface
     sheet = wavy_sheet()
     tool, plain = MeshedSurface(sheet, margin=0.5), MeshedSurface(sheet)
     rng = np.random.default_rng(7)

@@ -17,9 +17,9 @@ from drape.config import from_mapping
 from drape.errors import InputError
 from drape.geometry.tools import (DoubleDomeTools, HemisphereTools, StepTool, StepTools,
                                   ToolMeshing, ToolsConfig, analytic_tools, build_tools,
-                                  check_step_file, double_dome_height, hemisphere_profiles,
+                                  double_dome_height, hemisphere_profiles,
                                   load_tools_config, write_tool_surfaces)
-from drape.tools import MeshedSurface
+from drape.forming.surfaces import MeshedSurface
 from tool_helpers import chord_bound
 
 COARSE = ToolMeshing(chord_tolerance=0.2, max_size=20.0, elements_per_radius=2.0)

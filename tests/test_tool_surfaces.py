@@ -1,4 +1,4 @@
-"""Rigid tool surfaces (drape.tools) against exact geometry and brute force.
+"""Rigid tool surfaces (drape.forming.surfaces) against exact geometry and brute force.
 
 Analytic profiles against closed-form distances (sphere, cylinder, plane, torus); the meshed
 search against a brute-force loop over every triangle; the meshed sphere against the exact
@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from drape.tools import (Arc, AxisymmetricSurface, MeshedSurface, Profile, Segment,
+from drape.forming.surfaces import (Arc, AxisymmetricSurface, MeshedSurface, Profile, Segment,
                          TriangleSurface, closest_point_on_triangles)
 from tool_helpers import brute_force, chord_bound, icosphere, wavy_sheet
 

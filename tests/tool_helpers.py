@@ -3,7 +3,7 @@ closest points over every triangle, and the chord-error bound of a triangulation
 
 import numpy as np
 
-from drape.tools import TriangleSurface, closest_point_on_triangles
+from drape.forming.surfaces import TriangleSurface, closest_point_on_triangles
 
 
 def icosphere(radius=10.0, centre=(0.0, 0.0, 0.0), refinements=3) -> TriangleSurface:

@@ -53,10 +53,12 @@ class SurfaceTable:
             rows = getattr(self, name)
             if len(rows) != len(bounds):
                 raise InputError(f"has {len(rows)} rows but gamma_max_deg has {len(bounds)} ranges",
-                                 key=name, value=[list(r) for r in rows], expected=f"one row per range ({len(bounds)} rows)")
+                                 key=name, value=[list(r) for r in rows],
+                                 expected=f"one row per range ({len(bounds)} rows)")
             widths = {len(r) for r in rows}
             if len(widths) > 1:
-                raise InputError("rows of different lengths", key=name, value=[list(r) for r in rows],
+                raise InputError("rows of different lengths", key=name,
+                                 value=[list(r) for r in rows],
                                  expected="the same number n of inner surfaces in every row")
         if len(self.a) and len(self.a[0]) != len(self.h[0]):
             raise InputError(f"a has {len(self.a[0])} columns but h has {len(self.h[0])}", key="h",
@@ -96,7 +98,8 @@ class MaterialParameters:
     def validate(self):
         sy = self.Sy
         if len(sy) == 0:
-            raise InputError("no surface", key="Sy", value=[], expected="[Sy_0] or [Sy_0, Sy_1, ...]")
+            raise InputError("no surface", key="Sy", value=[],
+                             expected="[Sy_0] or [Sy_0, Sy_1, ...]")
         if any(b >= a for a, b in zip(sy, sy[1:])):
             raise InputError("surfaces not nested", key="Sy", value=list(sy),
                              expected="Sy_0 > Sy_1 > ... > Sy_n > 0")
@@ -106,7 +109,8 @@ class MaterialParameters:
         n = len(sy) - 1
         if n > 0 and self.surfaces.n_inner != n:
             raise InputError(f"Table 2 has {self.surfaces.n_inner} inner surfaces but Sy has {n}",
-                             key="surfaces.a", value=[list(r) for r in self.surfaces.a], expected=f"{n} columns in a and h (one per Sy_1..Sy_n)")
+                             key="surfaces.a", value=[list(r) for r in self.surfaces.a],
+                             expected=f"{n} columns in a and h (one per Sy_1..Sy_n)")
         self._check_radii_nested()
 
     def _check_radii_nested(self, limit_deg: float = 60.0):

@@ -29,7 +29,7 @@ class ResultsWriter:
                  snapshot: str = "final", append: bool = False,
                  extra_cell_fields: dict | None = None):
         """``append``: continue the files of a resumed run (rewound to its checkpoint by
-        :func:`drape.checkpoint.rewind_outputs`) instead of starting them.
+        :func:`drape.io.checkpoint.rewind_outputs`) instead of starting them.
         ``extra_cell_fields``: {name: function returning one value per local cell}, written
         as DG0 fields next to the law's (e.g. the contact pressure of a forming job)."""
         from dolfinx import fem, io
@@ -68,7 +68,7 @@ class ResultsWriter:
                 raise
         self.remember_fields()
 
-    # --- per step -----------------------------------------------------------------------------------
+    # --- per step ---------------------------------------------------------------------------------
     def write_step(self, row: dict, t: float, *, last: bool = False) -> None:
         """Append the CSV row; write the fields if due (every ``xdmf_every`` steps, and the last).
         If the fields fail (a full disk), the row is cut off again."""
@@ -163,7 +163,7 @@ class ResultsWriter:
         text = getattr(self, "_xdmf_text", None)
         if self.comm.rank != 0 or text is None:
             return
-        from drape.checkpoint import _replace_text
+        from drape.io.checkpoint import _replace_text
         path = self.folder / FIELDS_FILE
         try:
             _replace_text(path, text)
@@ -176,7 +176,7 @@ class ResultsWriter:
         """result.npz: nodal and point fields gathered on rank 0, sorted by coordinates."""
         data = gather_sorted(self.problem)
         if self.comm.rank == 0:     # to a temporary file, renamed: never a cut-off result
-            from drape.checkpoint import _replace_atomically, _savez
+            from drape.io.checkpoint import _replace_atomically, _savez
             _replace_atomically(self.folder / SNAPSHOT_FILE,
                                 lambda stream: _savez(stream, dict(t=t, **data)))
 
@@ -206,7 +206,8 @@ def gather_sorted(problem) -> dict[str, np.ndarray] | None:
     point_order = _coordinate_order(points)
     return {"node_xy": nodes[node_order], "u": u[node_order],
             "point_xy": points[point_order], "tau": point_values[point_order, 0],
-            "gamma_p_deg": point_values[point_order, 1], "gamma_t_deg": point_values[point_order, 2],
+            "gamma_p_deg": point_values[point_order, 1],
+            "gamma_t_deg": point_values[point_order, 2],
             "dtau_dC12": point_values[point_order, 3]}
 
 

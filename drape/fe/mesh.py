@@ -65,7 +65,7 @@ def create_blank_mesh(comm, blank, mesh_config, centred: bool = False) -> BlankM
     # PT-Scotch 7 (DOLFINx's partitioner here) runs one thread per core by default, and the
     # threads make the partition differ from run to run (2 ranks, the hemisphere's 2601 cells:
     # 4 different partitions in 5 runs; 5 identical ones with a single thread). A run and its
-    # resume must get the same partition for the same numbers (drape.checkpoint).
+    # resume must get the same partition for the same numbers (drape.io.checkpoint).
     os.environ.setdefault("SCOTCH_PTHREAD_NUMBER", "1")
     try:
         msh, cell_tags, facet_tags = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2)

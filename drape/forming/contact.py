@@ -2,12 +2,14 @@
 pointwise and vectorised (numpy only), with their consistent tangents.
 
 At each quadrature point the finite-element layer supplies, from the current position, the
-tool's gap g and unit normal n (pointing away from the tool, see :mod:`drape.tools`) and the
+tool's gap g and unit normal n (pointing away from the tool, see :mod:`drape.forming.surfaces`) and
+the
 slip Δs of the fabric relative to the tool (a 3-vector: the displacement increment over the
 current load step minus the tool's rigid motion, plus the elastic slip the point held in the
 stick zone at the last converged step, :func:`elastic_slip`, which
-:class:`drape.forming.ToolContact` keeps: so friction has memory, and a point drawn slowly
-over a tool reaches μ p whatever the step size). :func:`traction` returns the traction t the tool exerts on the fabric (N/mm², per unit reference area), its derivative
+:class:`drape.forming.press.ToolContact` keeps: so friction has memory, and a point drawn slowly
+over a tool reaches μ p whatever the step size). :func:`traction` returns the traction t the
+tool exerts on the fabric (N/mm², per unit reference area), its derivative
 dt/du with respect to the fabric displacement (3×3 per point) and the contact pressure.
 
 Normal law (penalty):   p = ε_N ⟨-g⟩,  t_N = p n        (⟨x⟩ = max(x, 0))
@@ -32,7 +34,7 @@ with φ = Δs_T/δ and Dφ = I/δ (stick), φ = Δs_T/s and Dφ = (I - e⊗e)/s,
 The friction part is not symmetric (the term μ ε_N φ ⊗ n).
 
 The finite-element layer adds ∫ t·δu dA to the external virtual work and
--∫ δu·(dt/du)·du dA to the stiffness. Parameters and the penalty rule: ``docs/tools.md``.
+-∫ δu·(dt/du)·du dA to the stiffness. Parameters and the penalty rule: ``docs/contact.md``.
 """
 
 from __future__ import annotations
@@ -47,11 +49,11 @@ from drape.config import non_negative, positive, setting
 from drape.errors import InputError
 
 #: Default tool-fabric friction coefficient: dry glass or carbon fabric on steel at room
-#: temperature, at the low end of the measured 0.2-0.3 (docs/tools.md, "Friction").
+#: temperature, at the low end of the measured 0.2-0.3 (docs/contact.md, "Friction coefficient").
 DEFAULT_FRICTION = 0.2
 #: Slip (mm) over which friction builds up to μ p.
 DEFAULT_SLIP_REGULARISATION = 0.05
-#: c in ε_N = c K / h² (docs/tools.md, "Penalty").
+#: c in ε_N = c K / h² (docs/contact.md, "Penalty").
 DEFAULT_PENALTY_FACTOR = 1.0
 #: g0 / h of the smoothed penalty (docs/forming.md, "Contact").
 DEFAULT_SMOOTHING_FACTOR = 0.05

@@ -4,9 +4,10 @@ The double-dome punch, die and blank holder (``drape.geometry.tools.DoubleDomeTo
 by gmsh/OpenCASCADE in ``_double_dome_shape`` and ``_build_double_dome``) are queried here
 without a triangulation: the gap is the exact signed distance to the CAD construction, its
 gradient (the normal) is continuous, and a query costs a few dozen numpy operations per point
-(the triangulated tools of ``drape.tools.MeshedSurface`` give a gap whose gradient jumps from
-facet to facet, and are 50 to 100 times slower). Same interface as the tools of
-``drape.tools``: ``query(points, offset=None, cutoff=None) -> ContactQuery(gap, normal,
+(the triangulated tools of ``drape.forming.surfaces.MeshedSurface`` give a gap whose gradient jumps
+from
+facet to facet, and are far slower: docs/contact.md, "Throughput"). Same interface as the tools of
+``drape.forming.surfaces``: ``query(points, offset=None, cutoff=None) -> ContactQuery(gap, normal,
 closest)``; ``cutoff`` is ignored (the answer is exact for near points and cheap for all).
 
 **Method: every rounded edge is an opening.** A solid whose convex edges are rounded by a
@@ -48,7 +49,7 @@ answer is exact to round-off.
 
 The normal is the gradient of the gap with respect to the point (the contact Jacobian relies
 on it), and closest = point - gap * normal. The method and its measured agreement with the
-meshed tools are in ``docs/tools.md`` ("Exact double-dome tools").
+meshed tools are in ``docs/contact.md`` ("Exact double-dome tools").
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
-from drape.tools import ContactQuery, _tool_frame, _unit
+from drape.forming.surfaces import ContactQuery, _tool_frame, _unit
 
 
 class Distance(NamedTuple):
@@ -384,7 +385,7 @@ class PlateWithOpening:
 
 class SignedDistanceSurface:
     """A rigid tool whose solid is given by an exact signed distance (see the module
-    docstring); the interface of ``drape.tools.RigidSurface``."""
+    docstring); the interface of ``drape.forming.surfaces.RigidSurface``."""
 
     def __init__(self, solid: Solid, name: str = "tool", chunk: int = 16384):
         self.solid, self.name = solid, name

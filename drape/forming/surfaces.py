@@ -28,7 +28,7 @@ Two implementations:
   result is the exact closest point of the triangulation. Normals are interpolated from vertex
   normals with the barycentric coordinates of the closest point: a continuous normal field.
 
-The method and its accuracy are described in ``docs/tools.md``.
+The method and its accuracy are described in ``docs/contact.md``.
 """
 
 from __future__ import annotations
@@ -418,7 +418,7 @@ def _degenerate_bary(p, a, b, c):
 class MeshedSurface:
     """Exact closest points on a triangulated surface, with interpolated normals.
 
-    Search (vectorised over points; docs/tools.md):
+    Search (vectorised over points; docs/contact.md):
 
     1. a k-d tree on all triangle centroids gives each point its ``k`` nearest centroids; the
        exact point-triangle distance to those triangles is an upper bound d on the distance;
@@ -449,7 +449,8 @@ class MeshedSurface:
     them (a triangle left out is farther than d0 + 2 margin - margin from it, while the one
     closest at p0 is nearer than d0 + margin), and of them only those within d0 + 2 delta of
     p0 (delta the point's move since p0) can be closest: only these are evaluated, 2-5 per
-    point in a Newton iteration. A point that moved farther than margin is searched again. Points farther than cutoff + margin at p0 keep their closest
+    point in a Newton iteration. A point that moved farther than margin is searched again.
+    Points farther than cutoff + margin at p0 keep their closest
     triangle then, whose distance stays an upper bound, above cutoff. So the answers are those
     of the search without the lists. The lists are kept for one set of points (their number
     and the cutoff): another set starts them again.

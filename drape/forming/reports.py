@@ -82,7 +82,8 @@ def shear_summary(problem, locking_angle: float, comm) -> dict:
         cell = i // problem.nq
         V = problem.V
         dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)[cell]
-        centre = (V.tabulate_dof_coordinates()[dofs] + problem.u.x.array.reshape(-1, 3)[dofs]).mean(axis=0)
+        centre = (V.tabulate_dof_coordinates()[dofs]
+                  + problem.u.x.array.reshape(-1, 3)[dofs]).mean(axis=0)
         best = (float(gamma[i]), problem.point_coordinates[i].tolist(), centre.tolist())
     else:
         best = (-1.0, None, None)
@@ -149,7 +150,7 @@ def edge_draw_in(X, u, targets: dict, comm, tie: float = 1e-6) -> dict[str, floa
     return out
 
 
-# --- rank 0 writers ----------------------------------------------------------------------------------
+# --- rank 0 writers -------------------------------------------------------------------------------
 
 def write_force_stroke(folder: Path, rows: list) -> None:
     columns = [c for c in FORCE_STROKE_COLUMNS if c in rows[-1]]

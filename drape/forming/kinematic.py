@@ -5,7 +5,8 @@ It is the classic independent estimate of where a woven ply shears (Mack and Tay
 Inst. 47 (1956) T477; Van der Weeën, Int. J. Numer. Meth. Eng. 31 (1991) 1415; Krogh et al.,
 Struct. Multidisc. Optim. 64 (2021) 457, the KinDrape code), and drape uses it as a second,
 force-free implementation against which the finite-element shear maps are compared
-(docs/forming.md). The mould is any tool of :mod:`drape.tools` (or :mod:`drape.double_dome`):
+(docs/forming.md). The mould is any tool of :mod:`drape.forming.surfaces` (or
+:mod:`drape.forming.double_dome`):
 its ``query`` gives the signed distance (gap) and its gradient (normal), so the mould surface
 is the level set gap = 0, vertical walls included.
 

@@ -9,13 +9,16 @@ blank (rectangle or disc) is centred on the tools' axis in the plane z = 0, wher
 face and the holder's lower face are (``tools.*.gap`` = 0).
 
 * The punch and the die are rigid surfaces (exact for the hemisphere's surfaces of revolution,
-  :mod:`drape.tools`, and for the double dome's rolling-ball constructions,
-  :mod:`drape.double_dome`; an exact closest point on the gmsh triangulation of STEP tools) queried at
-  the membrane's quadrature points from their current positions; :func:`drape.contact.traction`
+  :mod:`drape.forming.surfaces`, and for the double dome's rolling-ball constructions,
+  :mod:`drape.forming.double_dome`; an exact closest point on the gmsh triangulation of STEP tools)
+  queried at
+  the membrane's quadrature points from their current positions;
+  :func:`drape.forming.contact.traction`
   gives traction and tangent. The punch moves by (0, 0, -stroke * t).
 * The blank holder is a rigid tool too, force-controlled: a membrane has no thickness, so the
   holder pinches the flange against the die, both in smoothed penalty contact
-  (:func:`drape.contact.normal_pressure`); its height is set so that the pinched flange carries
+  (:func:`drape.forming.contact.normal_pressure`); its height is set so that the pinched flange
+  carries
   the pressure F / A (A the blank's reference area under the holder's flat face); a converged
   step whose measured holder force is off F by more than :data:`HOLDER_TOLERANCE` is solved
   again with the holder moved (:meth:`Forming.hold_force`), and after every converged step the
@@ -38,11 +41,11 @@ from pathlib import Path
 
 import numpy as np
 
-from drape.contact import elastic_slip, gap_for_pressure, traction
+from drape.forming.contact import elastic_slip, gap_for_pressure, traction
 from drape.errors import InputError
+from drape.fe.membrane import PointContribution
 from drape.job import describe_blank
-from drape.membrane import PointContribution
-from drape.oscillation import OSCILLATION_WARNING
+from drape.reports.oscillation import OSCILLATION_WARNING
 
 FORCE_STROKE_FILE = "force_stroke.csv"
 SUMMARY_FILE = "summary.json"
@@ -54,10 +57,11 @@ ON_DIE_TOLERANCE = 1.0
 SETTLING_DAMPING = 1e-3
 #: a converged step's holder force must be within this fraction of process.holder_force, else
 #: the step is solved again with the holder moved (:meth:`Forming.hold_force`), at most
-#: HOLDER_CORRECTIONS times: with 1 mm steps in the locking stage the force drifted to 7 % over
-#: F between the per-step corrections (docs/forming.md, "Blank holder"). Six, not three: where
-#: the holder comes down from the wrinkles at its rim onto the flat flange the force bends
-#: sharply, and closing in on F inside the bracket takes more moves (most steps need one or two)
+#: HOLDER_CORRECTIONS times: corrections between steps alone let the force drift where the
+#: fabric under the holder thickens, as in the locking stage (docs/forming.md, "Blank holder").
+#: Room for several moves: where the holder comes down from the wrinkles at its rim onto the
+#: flat flange the force bends sharply, and closing in on F inside the bracket can take more
+#: than the one or two moves most steps need
 HOLDER_TOLERANCE = 0.01
 HOLDER_CORRECTIONS = 6
 #: until the force has been seen on both sides of F, the re-solves after the first move the
@@ -66,14 +70,15 @@ HOLDER_CORRECTIONS = 6
 #: small fraction of it (double dome: 0.01-0.1)
 HOLDER_LEAST_SLOPE = 0.005
 #: and at most this: where the holder's rim presses the fabric drawn over the die's fillet the
-#: force grows faster than the target (hemisphere +-45: 1.6-1.8), and a slope kept at 1 made
-#: the moves overshoot by as much as they corrected, back and forth
+#: force grows faster than the target, and a slope bounded by 1 would make the moves overshoot
+#: by about as much as they correct, back and forth
 HOLDER_MOST_SLOPE = 10.0
 #: a converged step whose measured holder force is off process.holder_force by more than this
 #: fraction is a warning in the log (with the step and both forces) and is counted in
 #: summary.json: the log and the summary never state a force that was not applied
 HOLDER_WARNING = 0.05
-#: meshed (STEP) tools: the candidate lists' margin (mm, drape.tools.MeshedSurface): a point is
+#: meshed (STEP) tools: the candidate lists' margin (mm, drape.forming.surfaces.MeshedSurface): a
+#: point is
 #: searched again once it has moved this far (in the tool's frame) since its last search
 TOOL_LIST_MARGIN = 0.5
 #: STEP tools: a point of the flat blank is under the holder's flat face when the holder's and
@@ -83,7 +88,7 @@ FLAT_COSINE = math.cos(math.radians(1.0))
 PINCH_TOLERANCE = 0.05
 
 
-# --- validation of a forming job -------------------------------------------------------------------
+# --- validation of a forming job ------------------------------------------------------------------
 
 def tool_set(config):
     """The chosen tool dimensions ([tools.hemisphere], [tools.double_dome] or [tools.step])."""
@@ -144,7 +149,8 @@ def _polygon_radii(blank) -> tuple[float, float]:
     outline = blank_outline(blank)
     origin = np.zeros((1, 2))
     gap = float(_closest(outline, origin)[0][0])
-    return (gap if _inside(outline, origin)[0] else -gap), float(np.linalg.norm(outline, axis=1).max())
+    reach = float(np.linalg.norm(outline, axis=1).max())
+    return (gap if _inside(outline, origin)[0] else -gap), reach
 
 
 def check_forming(config) -> None:
@@ -168,7 +174,8 @@ def check_forming(config) -> None:
                                   "(the punch would hit the die)")
     hx, hy = blank_half_extents(config.blank)
     reach = math.hypot(hx, hy) if config.blank.shape == "rectangle" else hx
-    key = {"disc": "blank.radius", "polygon": "blank.points"}.get(config.blank.shape, "blank.length")
+    key = {"disc": "blank.radius", "polygon": "blank.points"}.get(config.blank.shape,
+                                                                  "blank.length")
     if config.blank.shape == "polygon":
         inner, reach = _polygon_radii(config.blank)
         if tools.kind == "hemisphere":
@@ -191,7 +198,8 @@ def check_forming(config) -> None:
             corners = np.array([[ox, oy], [-ox, oy], [-ox, -oy], [ox, -oy]])
             if not _inside(outline, corners).all() or min(hx, hy) <= min(ox, oy):
                 raise InputError("the blank does not cover the die cavity", key=key,
-                                 expected=f"a polygon around the cavity |x| < {ox:g}, |y| < {oy:g} mm")
+                                 expected=f"a polygon around the cavity |x| < {ox:g}, "
+                                          f"|y| < {oy:g} mm")
             if hx > dims.die_length / 2 or hy > dims.die_width / 2:
                 raise InputError("the blank reaches beyond the die", key=key,
                                  expected=f"|x| <= {dims.die_length / 2:g} and |y| <= "
@@ -213,7 +221,8 @@ def check_forming(config) -> None:
         if hx <= opening_x or hy <= opening_y:
             raise InputError("the blank does not cover the die cavity", key=key,
                              value=(2 * hx, 2 * hy),
-                             expected=f"length > {2 * opening_x:g} and width > {2 * opening_y:g} mm")
+                             expected=f"length > {2 * opening_x:g} and "
+                                      f"width > {2 * opening_y:g} mm")
         if hx > dims.die_length / 2 or hy > dims.die_width / 2:
             raise InputError("the blank reaches beyond the die", key=key, value=(2 * hx, 2 * hy),
                              expected=f"length <= {dims.die_length:g} and width <= "
@@ -225,10 +234,11 @@ def check_forming(config) -> None:
             raise InputError("the mesh is too coarse for the tools", key="mesh.size",
                              value=config.mesh.size,
                              expected=f"<= {largest:.3g} mm: two elements over the quarter arc "
-                                      f"of the smallest fillet the fabric wraps (R = {radius:g} mm)")
+                                      "of the smallest fillet the fabric wraps "
+                                      f"(R = {radius:g} mm)")
 
 
-# --- the holder's region ---------------------------------------------------------------------------
+# --- the holder's region --------------------------------------------------------------------------
 
 def pinch_region(holder, die, points, comm, reach: float = ON_DIE_TOLERANCE):
     """STEP tools, whatever their shape: the points (P, 3) of the flat blank that lie between a
@@ -273,7 +283,7 @@ def holder_region(config):
     return None
 
 
-# --- point contributions ---------------------------------------------------------------------------
+# --- point contributions --------------------------------------------------------------------------
 
 class ToolContact(PointContribution):
     """Rigid tools in (smoothed) penalty contact with friction; the tools named in ``moving``
@@ -319,7 +329,8 @@ class ToolContact(PointContribution):
             query = surface.query(positions, offset, cutoff=self.cutoff)
             # the slip since the last converged step plus the elastic slip held then: friction
             # with memory, so that a point drawn slowly over a tool reaches mu p whatever the
-            # step size (without it the force fell with the step, 14.4 -> 12.8 N, docs/forming.md)
+            # step size (without it a point drawn by less than the slip regularisation per step
+            # never reaches mu p, and the forces depend on the steps; docs/forming-checks.md)
             slip = (displacements - self.committed_u - (offset - self.committed_offsets[name])
                     + self.elastic_slip[name])
             response = traction(query.gap, query.normal, slip, self.penalty, self.friction,
@@ -334,7 +345,7 @@ class ToolContact(PointContribution):
 
     def commit(self) -> None:
         """The converged step becomes the reference of the next; each point keeps the part of
-        its tangential slip within the stick zone (:func:`drape.contact.elastic_slip`)."""
+        its tangential slip within the stick zone (:func:`drape.forming.contact.elastic_slip`)."""
         self.committed_u = np.array(self._u, copy=True)
         self.committed_offsets = {k: v.copy() for k, v in self.offsets.items()}
         for name, (slip, n) in self._trial_slip.items():
@@ -365,15 +376,16 @@ class HolderControl:
     The flange of reference area A (under the holder's flat face) pinched between the die
     (top at z = 0) and the holder (bottom at z = -d) settles midway, at a gap -d/2 from each,
     where both push with the pressure p(-d/2) of the smoothed penalty; so d = -2 g(F' / A) with
-    g the inverse of the penalty law (:func:`drape.contact.gap_for_pressure`). F' starts at F
+    g the inverse of the penalty law (:func:`drape.forming.contact.gap_for_pressure`). F' starts at
+    F
     and after every converged step moves by half the difference between F and the measured
     holder force (fabric thicker than flat where it wrinkles or bunches, the flange leaving the
     flat face), which brings the measured force to F within a few steps. Where the fabric
     pushes the holder elsewhere too (at its rim, or wrinkles rising under it), F' goes below
     F, and below F_min = 1e-3 F the holder keeps lifting, by 2 (F_min - F') / (eps_N A), the
     slope of the plain penalty's branch: a press's cushion lifts as far as the force needs.
-    Without that the double dome's holder stuck 2 g0 above the die carrying up to 777 N of its
-    500 N (docs/forming.md)."""
+    Without the lift the holder would stop 2 g0 above the die, where the smoothed penalty's
+    pressure falls to zero, and could not rise far enough to bring the force down to F."""
 
     GAIN = 0.5
 
@@ -431,7 +443,7 @@ class _Bracket:
         return t0 + e0 * (t1 - t0) / (e0 - e1)
 
 
-# --- the forming job -------------------------------------------------------------------------------
+# --- the forming job ------------------------------------------------------------------------------
 
 class Forming:
     """Everything a forming job adds to ``drape run``: contributions, measurements, outputs."""
@@ -439,7 +451,7 @@ class Forming:
     def __init__(self, job, comm, log=None):
         from drape.geometry.tools import (analytic_double_dome_tools, analytic_tools,
                                           build_tools)
-        from drape.tools import MeshedSurface
+        from drape.forming.surfaces import MeshedSurface
 
         self.job, self.comm = job, comm
         config = job.config
@@ -501,13 +513,14 @@ class Forming:
         so that a --set of the blank never leaves a title describing another one."""
         return ", ".join(p for p in (self.config.title, describe_blank(self.config.blank)) if p)
 
-    # --- wiring ---------------------------------------------------------------------------------------
+    # --- wiring -----------------------------------------------------------------------------------
     def bind(self, problem) -> None:
         """Reference area of each contribution point (mm^2), once the problem exists."""
         import ufl
         from dolfinx import fem
         detJ = fem.Expression(ufl.JacobianDeterminant(problem.mesh), problem.extra_points)
-        areas = np.abs(detJ.eval(problem.cells)).reshape(problem.n_cells, -1) * problem.extra_weights
+        areas = (np.abs(detJ.eval(problem.cells)).reshape(problem.n_cells, -1)
+                 * problem.extra_weights)
         self.problem = problem
         self.areas = areas.ravel()
         self.n_extra = areas.shape[1]
@@ -564,7 +577,7 @@ class Forming:
         if not from_rest:
             p.u_anchor.x.array[:] += dtau / dtau_last * (u1 - u0)
 
-    # --- per step ---------------------------------------------------------------------------------------
+    # --- per step ---------------------------------------------------------------------------------
     def measure(self, t: float, converged: bool = True) -> dict:
         """Forces (N), penetration (mm), contact areas (mm^2) at the converged state (collective).
 
@@ -669,7 +682,7 @@ class Forming:
         A = self.areas.reshape(-1, self.n_extra)
         return (p.reshape(-1, self.n_extra) * A).sum(axis=1) / A.sum(axis=1)
 
-    # --- at the end ---------------------------------------------------------------------------------------
+    # --- at the end -------------------------------------------------------------------------------
     def _holder_summary(self, rows: list) -> dict:
         """summary.json's holder entries: how it was driven, the force it was driven to (force
         control only) and the force measured over the converged steps (never the config's
@@ -691,12 +704,12 @@ class Forming:
 
     def finish(self, folder: Path, rows: list, seconds: float) -> dict:
         """force_stroke.csv/.png, shear maps, summary.json (collective; rank 0 writes)."""
-        from drape import forming_output
+        from drape.forming import reports
         problem = self.problem
         locking = self.process.locking_angle
-        cells = forming_output.gather_cells(problem)
-        summary = forming_output.shear_summary(problem, locking, self.comm)
-        summary.update(forming_output.draw_in(problem, self.config.blank, self.comm))
+        cells = reports.gather_cells(problem)
+        summary = reports.shear_summary(problem, locking, self.comm)
+        summary.update(reports.draw_in(problem, self.config.blank, self.comm))
         measured = [r["holder_force"] for r in rows[1:] if "holder_force" in r]
         if measured:
             target = (f"its target {self.process.holder_force:g} N; "
@@ -714,7 +727,7 @@ class Forming:
                 "stroke_mm": rows[-1].get("stroke", 0.0), "configured_stroke_mm": self.stroke,
                 "tools_full_stroke_mm": full_stroke(self.config),
                 "max_punch_force_N": float(max(forces)),
-                # cell-to-cell shear oscillation (drape/oscillation.py, docs/blanks.md)
+                # cell-to-cell shear oscillation (drape/reports/oscillation.py, docs/blanks.md)
                 "shear_oscillation_deg": float(rows[-1].get("shear_oscillation_deg", 0.0)),
                 "max_shear_oscillation_deg": float(max(r.get("shear_oscillation_deg", 0.0)
                                                        for r in rows)),
@@ -734,11 +747,11 @@ class Forming:
                 "wall_time_s": seconds, "ranks": self.comm.size,
                 "cells": problem.mesh.topology.index_map(problem.mesh.topology.dim).size_global,
             })
-            summary.update(forming_output.strip_summary(cells, self.config.blank.yarn_angle))
+            summary.update(reports.strip_summary(cells, self.config.blank.yarn_angle))
             folder = Path(folder)
-            forming_output.write_force_stroke(folder, rows)
-            forming_output.plot_force_stroke(folder, rows, self.title)
-            forming_output.plot_shear_maps(folder, cells, locking, self.title)
+            reports.write_force_stroke(folder, rows)
+            reports.plot_force_stroke(folder, rows, self.title)
+            reports.plot_shear_maps(folder, cells, locking, self.title)
             with (folder / SUMMARY_FILE).open("w") as stream:
                 json.dump(summary, stream, indent=2)
                 stream.write("\n")

@@ -19,7 +19,8 @@ HELP = "check a tool configuration ([tools] table) and write its surfaces (.vtu 
 def add_arguments(parser) -> None:
     parser.add_argument("config", metavar="CONFIG.toml", help="a file with a [tools] table")
     parser.add_argument("--output", default=None, metavar="FILE",
-                        help="surfaces file, .vtu or .msh (default results/tools/<config name>.vtu)")
+                        help="surfaces file, .vtu or .msh "
+                             "(default results/tools/<config name>.vtu)")
     parser.add_argument("--check", action="store_true",
                         help="only validate the configuration; build and write nothing")
 

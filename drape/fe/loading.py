@@ -71,7 +71,8 @@ class Formula:
                              value=text, expected=expected) from None
         for node in ast.walk(tree):
             if not isinstance(node, _ALLOWED_NODES):
-                raise InputError(f"'{ast.unparse(node) if isinstance(node, ast.expr) else type(node).__name__}'"
+                shown = ast.unparse(node) if isinstance(node, ast.expr) else type(node).__name__
+                raise InputError(f"'{shown}'"
                                  " is not allowed in a formula", source=source, key=key, value=text,
                                  expected=expected)
             if isinstance(node, ast.Constant) and not isinstance(node.value, (int, float)):
@@ -130,7 +131,8 @@ class Loading:
             for component in COMPONENTS:
                 text = getattr(entry, component)
                 formulas.append(None if text is None else
-                                Formula(text, names, key=f"boundary[{i}].{component}", source=source))
+                                Formula(text, names, key=f"boundary[{i}].{component}",
+                                        source=source))
             prescribed.append(Prescribed(entry.on, tuple(formulas)))
         loading = cls(histories, prescribed, np.radians(job.blank.yarn_angle))
         loading.check(source)
@@ -174,7 +176,8 @@ class Loading:
                     try:
                         value = self.evaluate(formula, xy, t)
                     except Exception as error:  # numpy raises many kinds (TypeError, ValueError)
-                        raise InputError(f"cannot be evaluated at t = {t:g} ({error})", source=source,
+                        raise InputError(f"cannot be evaluated at t = {t:g} ({error})",
+                                         source=source,
                                          key=formula.key, value=formula.text,
                                          expected="a formula giving a displacement in mm") from None
                     if not np.all(np.isfinite(value)):

@@ -6,8 +6,8 @@ disabled (``--quiet``, or ranks other than 0).
 
 The time left is the load still to go at the slower of two paces: the run's average since its
 first step, and its last few steps'. Forming slows down near its end (the shear locks, steps
-are cut back), which the average alone sees too late: on the default hemisphere it said "~2s
-left" with 40 s to go. Paces count from the load the run started at, so a resumed run is not
+are cut back), which the average alone sees too late: it promised seconds where most of a
+minute was left. Paces count from the load the run started at, so a resumed run is not
 credited with the load of the run it continues.
 """
 

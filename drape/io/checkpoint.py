@@ -1,8 +1,8 @@
 """Checkpoints of a run and resuming from one (``drape run CONFIG --resume``).
 
 ``checkpoint.npz`` in the results folder holds the last checkpointed converged step: every
-quadrature state (the law's, :meth:`~drape.membrane.MembraneProblem.law_state_functions`, and
-any point contribution's :meth:`~drape.membrane.PointContribution.state`: arrays of one row per
+quadrature state (the law's, :meth:`~drape.fe.membrane.MembraneProblem.law_state_functions`, and
+any point contribution's :meth:`~drape.fe.membrane.PointContribution.state`: arrays of one row per
 point of the rank are matched to their points, other arrays are the same on every rank), the
 committed and the previous displacement, the ledgers of
 external and regularisation work (with the prescribed forces and displacements their next
@@ -14,7 +14,7 @@ does not depend on the partition (:class:`Layout`: gmsh's node index, DOLFINx's 
 index); a resume finds its nodes and cells there by number and checks their coordinates (to
 1e-8 of the blank's size): another mesh is an :class:`~drape.errors.InputError`, another
 partition is not. The number of ranks must be the same (the resumed run then gets the same
-partition, drape.mesh, and continues with the same numbers). The file is written to a temporary
+partition, drape.fe.mesh, and continues with the same numbers). The file is written to a temporary
 name and renamed, so a kill or a full disk while writing leaves the previous checkpoint intact.
 
 Resuming rewinds the folder to the checkpoint (:func:`rewind_outputs`): ``steps.csv`` is
@@ -97,7 +97,7 @@ class Checkpoints:
         self.rows, self.frame_rows, self.ledger = rows, frame_rows, ledger
         self.last = None          # the last accepted solver Step
         self.saved_step = None    # number of the step in the file
-        self.disk = None          # a drape.disk.Disk: the ranks agree on write errors
+        self.disk = None          # a drape.io.disk.Disk: the ranks agree on write errors
 
     # --- writing ----------------------------------------------------------------------------
     def due(self, number: int) -> bool:
@@ -113,7 +113,7 @@ class Checkpoints:
     def save_last(self, check_space: bool = False) -> bool:
         """At a stop (signal, failure): save the last converged step unless already saved.
         The problem must hold the committed state. Collective. True if a checkpoint exists.
-        ``check_space``: not if the disk has no room for it (drape.disk.WriteFailed)."""
+        ``check_space``: not if the disk has no room for it (drape.io.disk.WriteFailed)."""
         if self.every and self.last is not None and self.saved_step != self.last.number:
             if check_space and self.disk is not None:
                 self.disk.check(self.last.number, True, results=False)
@@ -139,7 +139,7 @@ class Checkpoints:
             arrays = None
 
         def write():
-            from drape.output import FIELDS_FILE
+            from drape.io.writer import FIELDS_FILE
             xdmf = self.folder / FIELDS_FILE
             h5 = xdmf.with_suffix(".h5")
             # the copies first: a failure (a full disk) after them leaves copies of a later
@@ -392,7 +392,7 @@ def rewind_outputs(folder, rows: list, t: float, comm) -> None:
     the data where the first one put it."""
     import csv
 
-    from drape.output import FIELDS_FILE, STEPS_FILE, _text
+    from drape.io.writer import FIELDS_FILE, STEPS_FILE, _text
     folder = Path(folder)
     if comm.rank == 0:
         text = io.StringIO(newline="")

@@ -201,7 +201,7 @@ class quiet_hdf5:
         return self
 
     def __exit__(self, kind, *exc):
-        # after a failure, quiet for good: the file left open (drape.output._abandon) fails
+        # after a failure, quiet for good: the file left open (drape.io.writer._abandon) fails
         # to close again when HDF5 shuts down at exit
         if self._saved is not None and kind is None:
             _hdf5().H5Eset_auto2(0, self._saved[0], self._saved[1])

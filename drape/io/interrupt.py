@@ -2,8 +2,9 @@
 
 While a run is on, the handlers only note the signal. Before every residual evaluation the
 ranks combine their flags, and a flag set on any rank ends the Newton attempt on every rank
-there (drape.solver.NewtonSolver); the step loop asks
-:meth:`StopRequest.requested` before and after every Newton attempt; it is collective (an allreduce), so
+there (drape.fe.solver.NewtonSolver); the step loop asks
+:meth:`StopRequest.requested` before and after every Newton attempt; it is collective (an
+allreduce), so
 a signal delivered to one rank or to all of them stops every rank at the same step boundary:
 no rank is left waiting in a collective call. The run then writes the checkpoint of the last
 converged step and raises :class:`~drape.errors.Interrupted` (exit code 1). A second signal

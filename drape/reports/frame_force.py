@@ -51,7 +51,8 @@ def write(folder: Path, side: float, rows: list[dict]) -> None:
         writer = csv.writer(stream)
         writer.writerow(names)
         for row in rows:
-            writer.writerow([row[n] if isinstance(row[n], int) else repr(float(row[n])) for n in names])
+            writer.writerow([row[n] if isinstance(row[n], int) else repr(float(row[n]))
+                             for n in names])
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -1,6 +1,6 @@
 """Prescribed displacements on named boundaries, as DOLFINx Dirichlet conditions.
 
-:class:`PrescribedMotion` turns the job's :class:`~drape.loading.Loading` (formulas of x, y, t
+:class:`PrescribedMotion` turns the job's :class:`~drape.fe.loading.Loading` (formulas of x, y, t
 and the histories) into one Dirichlet condition per displacement component on the membrane's
 space. Where two ``[[boundary]]`` entries prescribe the same component at a node, the later
 entry wins. :meth:`PrescribedMotion.set_load` writes the values of load factor t.
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drape.loading import COMPONENTS
+from drape.fe.loading import COMPONENTS
 
 
 class PrescribedMotion:
@@ -46,7 +46,8 @@ class PrescribedMotion:
                 formula = entry.components[i]
                 if formula is None:
                     continue
-                dofs_V, dofs_Vi = fem.locate_dofs_topological((V.sub(i), Vi), 1, facets[entry.boundary])
+                dofs_V, dofs_Vi = fem.locate_dofs_topological((V.sub(i), Vi), 1,
+                                                              facets[entry.boundary])
                 keep = ~np.isin(dofs_V, claimed)
                 dofs_V, dofs_Vi = dofs_V[keep], dofs_Vi[keep]
                 claimed = np.concatenate([claimed, dofs_V])

@@ -93,7 +93,8 @@ class MembraneProblem:
     """Spaces, state, forms and the SNES callbacks of the membrane on a :class:`BlankMesh`."""
 
     def __init__(self, blank_mesh, law, yarn_angle_deg: float, damping: float,
-                 contributions: list[PointContribution] | None = None, jit_params: dict | None = None,
+                 contributions: list[PointContribution] | None = None,
+                 jit_params: dict | None = None,
                  bending_rigidity: float = 0.0, inertia: bool = False,
                  neutral_loading_band: float = 0.0):
         """``neutral_loading_band`` (rad): :func:`neutral_loading_tangent`'s band for Newton's
@@ -109,7 +110,8 @@ class MembraneProblem:
         self.damping = float(damping)
         self.neutral_loading_band = float(neutral_loading_band)
         self.contributions = list(contributions or [])
-        self.timings = dict.fromkeys(("law", "quadrature_values", "contributions", "residual_assembly",
+        self.timings = dict.fromkeys(("law", "quadrature_values", "contributions",
+                                      "residual_assembly",
                                       "jacobian_assembly"), 0.0)
         self.counts = dict.fromkeys(("residual", "jacobian", "law"), 0)
         jit = dict(jit_params or {})
@@ -139,7 +141,8 @@ class MembraneProblem:
         #: extrapolates from them; None before two steps have converged)
         self.u_previous = fem.Function(self.V, name="previous_displacement")
         self.t_committed, self.t_previous = 0.0, None
-        q_element = ufl.FiniteElement("Quadrature", msh.ufl_cell(), self.degree, quad_scheme="default")
+        q_element = ufl.FiniteElement("Quadrature", msh.ufl_cell(), self.degree,
+                                      quad_scheme="default")
         self.Q = fem.FunctionSpace(msh, q_element)
         self.qdofs = self.Q.dofmap.list.array.reshape(-1, nq)[: self.n_cells].ravel()
         self.tau = fem.Function(self.Q, name="tau")
@@ -195,7 +198,8 @@ class MembraneProblem:
             dx_centre = ufl.Measure("dx", domain=msh, subdomain_data=tags,
                                     metadata={"quadrature_degree": 1})
             virtual = ufl.sym(F.T * ufl.grad(v))
-            internal = (ufl.inner(S_yarn, virtual) * dx_tag(0) + ufl.inner(S_yarn, virtual) * dx_centre(1)
+            internal = (ufl.inner(S_yarn, virtual) * dx_tag(0)
+                        + ufl.inner(S_yarn, virtual) * dx_centre(1)
                         + ufl.inner(S_shear, virtual) * dx_law)
         jacobian = ufl.derivative(internal, u, du) + self.dtau * dE12(du) * 2.0 * dE12(v) * dx_law
         residual = internal
@@ -205,7 +209,8 @@ class MembraneProblem:
         jacobian += k * du[2] * v[2] * dx_extra
         regularisation_work = 0.5 * k * (u[2] - self.u_committed[2]) ** 2 * dx_extra
 
-        # --- inertia (implicit dynamics; a forming job sets both every step, drape/forming.py):
+        # --- inertia (implicit dynamics; a forming job sets both every step,
+        # drape/forming/press.py):
         # k_m (u - u_anchor) with u_anchor the motion carried on from the last steps, k_m in N/mm^3
         self.inertia_constant = fem.Constant(msh, 0.0)
         self.u_anchor = None
@@ -226,7 +231,8 @@ class MembraneProblem:
             jacobian += ufl.derivative(bending_residual, u, du)
 
         # --- point contributions: quadrature functions written before every assembly
-        self.extra_points, self.extra_weights = basix.make_quadrature(basix_cell, CONTRIBUTION_DEGREE)
+        self.extra_points, self.extra_weights = basix.make_quadrature(basix_cell,
+                                                                      CONTRIBUTION_DEGREE)
         n_extra = len(self.extra_weights)
         self._contribution_data = []
         if self.contributions:
@@ -291,7 +297,8 @@ class MembraneProblem:
         normal = a3 / ufl.sqrt(ufl.dot(a3, a3))
         h = 0.5 * (self.cell_size("+") + self.cell_size("-"))
         dS = ufl.dS(domain=msh, metadata={"quadrature_degree": 2})
-        return self.bending_rigidity / (2.0 * h) * ufl.inner(ufl.jump(normal), ufl.jump(normal)) * dS
+        return (self.bending_rigidity / (2.0 * h)
+                * ufl.inner(ufl.jump(normal), ufl.jump(normal)) * dS)
 
     # --- the law at the quadrature points ------------------------------------------------------
     def law_state_functions(self) -> dict:
@@ -459,7 +466,8 @@ class MembraneProblem:
         if self.strip_reduced:
             strip = self.blank_mesh.strip_cells
             strip = strip[strip < self.n_cells]
-            e1, e2 = (np.asarray(e, dtype=float).reshape(self.n_cells, self.nq).copy() for e in (e1, e2))
+            e1, e2 = (np.asarray(e, dtype=float).reshape(self.n_cells, self.nq).copy()
+                      for e in (e1, e2))
             for e in (e1, e2):
                 e[strip] = self.cell_average(e.ravel())[strip][:, None]
             e1, e2 = e1.ravel(), e2.ravel()
@@ -477,7 +485,8 @@ def neutral_loading_tangent(consistent, plastic, plastic_increment, elastic, ban
     A point that the step loads only just past its elastic range (near neutral loading) lies on
     the law's kink: from one Newton iterate to the next it switches between the elastic branch
     (2 mu Ksh, 284 N/mm with the paper's values) and the plastic one (0.01 N/mm at 3 deg,
-    0.6 at 20 deg, 7 at 35 deg after a monotonic loading), and with the plastic tangent Newton's step overshoots it back onto the elastic branch (on
+    0.6 at 20 deg, 7 at 35 deg after a monotonic loading), and with the plastic tangent
+    Newton's step overshoots it back onto the elastic branch (on
     the hemisphere, hundreds of points per iteration; docs/benchmarks.md, "Where the slow
     stretch comes from"). Where a point is plastic (``plastic``) by less than ``band`` (rad)
     of plastic shear in the step (``plastic_increment``, from the committed state) this gives

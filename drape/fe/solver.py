@@ -64,8 +64,8 @@ def jacobian_matrix_type(options: dict[str, str]) -> str | None:
     pair of nodes) under LU with MUMPS, else None (DOLFINx's AIJ).
 
     The bending hinges' interior-facet form inserts 24x24 values per edge, which AIJ looks up
-    one by one: on a 10 000-cell blank (2 ranks) the hinges' Jacobian assembled in 0.21 s with
-    AIJ and 0.09 s with BAIJ (docs/benchmarks.md). Other preconditioners keep AIJ: the field split
+    one by one, while BAIJ inserts a 3x3 block at a time: the hinges' assembly costs about half
+    (docs/fe-solver.md, "Solver and PETSc options"). Other preconditioners keep AIJ: the field split
     takes the x, y and z components apart, through the blocks, and GAMG, or MUMPS's Cholesky,
     refuse BAIJ."""
     direct = (options.get("pc_type") == "lu"
@@ -158,18 +158,20 @@ class SolveResult:
 
 
 class NewtonSolver:
-    """SNES over a :class:`~drape.membrane.MembraneProblem` (prefix ``drape_``)."""
+    """SNES over a :class:`~drape.fe.membrane.MembraneProblem` (prefix ``drape_``)."""
 
     def __init__(self, problem, config, force_scale: float, extra_options: dict | None = None,
-                 interrupted=None):
+                 interrupted=None, on_solve=None):
         """``interrupted()``: this rank's own "stop now" flag (e.g. a signal arrived). The ranks
         combine their flags (an allreduce) before every residual evaluation; when one is set,
         the callback raises on every rank at once, which ends SNES there (not after the line
-        search and the remaining iterations) with the reason "interrupted"."""
+        search and the remaining iterations) with the reason "interrupted". ``on_solve(self,
+        result)`` is called after every solve (a hook for benchmarks and tests)."""
         from petsc4py import PETSc
 
         self.problem = problem
         self.interrupted = interrupted
+        self.on_solve = on_solve
         self.options = default_options(config, force_scale)
         self.options.update({k: _option_text(v) for k, v in config.petsc.items()})
         self.options.update({k: _option_text(v) for k, v in (extra_options or {}).items()})
@@ -211,7 +213,7 @@ class NewtonSolver:
         """Newton from the current displacement (the committed one) to the prescribed values.
 
         ``floor`` (N): a residual norm that counts as converged too, besides the tolerances; a
-        step solved again (the holder moved, :meth:`drape.forming.Forming.hold_force`) passes
+        step solved again (the holder moved, :meth:`drape.forming.press.Forming.hold_force`) passes
         rtol times the step's first residual, so that it stops where the first solve would have."""
         from petsc4py import PETSc
         start = time.perf_counter()
@@ -242,9 +244,12 @@ class NewtonSolver:
         if nonfinite:
             reason = min(reason, -1)
             name = nonfinite_reason(nonfinite)
-        return SolveResult(reason > 0, self.snes.getIterationNumber(), name, float(residual),
-                           time.perf_counter() - start,
-                           float(history[0]) if len(history) else float(residual))
+        result = SolveResult(reason > 0, self.snes.getIterationNumber(), name, float(residual),
+                             time.perf_counter() - start,
+                             float(history[0]) if len(history) else float(residual))
+        if self.on_solve is not None:
+            self.on_solve(self, result)
+        return result
 
     def close(self) -> None:
         from petsc4py import PETSc
