@@ -14,6 +14,8 @@ import math
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
 from drape.config import (describe, each, from_mapping, in_range, non_negative, positive,
                           read_toml, setting)
 from drape.forming.contact import ContactParameters
@@ -21,7 +23,8 @@ from drape.errors import InputError
 from drape.geometry.tools import ToolsConfig
 
 #: boundary names of each blank shape (gmsh physical groups); "boundary" is the whole edge
-BOUNDARY_NAMES = {"rectangle": ("left", "right", "bottom", "top"), "disc": ("edge",)}
+BOUNDARY_NAMES = {"rectangle": ("left", "right", "bottom", "top"), "disc": ("edge",),
+                  "polygon": ("edge",)}
 WHOLE_BOUNDARY = "boundary"
 #: a mesh.size giving fewer elements than this across the blank is refused (too coarse to
 #: say anything: one element has no interior nodes)
@@ -30,16 +33,61 @@ MIN_ELEMENTS_ACROSS = 3
 
 @dataclasses.dataclass(frozen=True)
 class BlankConfig:
-    """The flat blank: a rectangle [0, length] x [0, width] or a disc centred at the origin."""
+    """The flat blank: a rectangle [0, length] x [0, width], a disc centred at the origin or a
+    polygon through given points (docs/blanks.md). A forming job centres the rectangle on the
+    tools' axis; disc and polygon are where they are, the tools' axis at the origin."""
 
-    shape: Literal["rectangle", "disc"] = setting("rectangle", "outline of the blank")
+    shape: Literal["rectangle", "disc", "polygon"] = setting("rectangle", "outline of the blank")
     length: float = setting(100.0, "rectangle: extent along x", positive, "mm")
     width: float = setting(100.0, "rectangle: extent along y", positive, "mm")
     radius: float = setting(50.0, "disc: radius", positive, "mm")
+    points: tuple[tuple[float, ...], ...] = setting(
+        (), "polygon: its vertices in order, [[x0, y0], [x1, y1], ...] (at least 3; a forming "
+        "job's tools have their axis at x = y = 0)", unit="mm")
     yarn_angle: float = setting(0.0, "angle theta from x to the warp yarns G1 = (cos, sin); "
                                 "the weft G2 is at theta + 90; from -90 to 90 "
                                 "(every direction: theta + 180 is the "
                                 "same yarn)", in_range(-90.0, 90.0), "deg")
+
+    def validate(self):
+        if self.shape == "polygon":
+            try:
+                blank_outline(self)
+            except InputError as error:     # keys relative to the [blank] table here
+                raise InputError(error.problem, key=error.key.removeprefix("blank."),
+                                 value=error.value, expected=error.expected) from None
+        elif self.points:
+            raise InputError(f"points given for a {self.shape}", key="points",
+                             value=[list(p) for p in self.points],
+                             expected="shape = \"polygon\" with these points, or no points")
+
+
+def blank_outline(blank):
+    """A polygon blank's vertices (n, 2) counter-clockwise (InputError naming blank.points)."""
+    from drape.geometry.blank import polygon_outline
+    for i, point in enumerate(blank.points):
+        if len(point) != 2:
+            raise InputError("not a point", key=f"blank.points[{i}]", value=list(point),
+                             expected="[x, y] in mm")
+    return polygon_outline(blank.points)
+
+
+def describe_blank(blank) -> str:
+    """The blank in a few words, for titles and summaries."""
+    if blank.yarn_angle % 90 == 0:
+        yarns = "yarns 0/90"
+    elif math.isclose(abs(blank.yarn_angle), 45.0):
+        yarns = "yarns +-45"
+    else:
+        yarns = f"yarns {blank.yarn_angle:g}/{blank.yarn_angle + 90:g}"
+    if blank.shape == "rectangle":
+        return f"{blank.length:g} x {blank.width:g} mm blank, {yarns}"
+    if blank.shape == "disc":
+        return f"disc blank R {blank.radius:g} mm, {yarns}"
+    from drape.geometry.blank import polygon_area
+    outline = blank_outline(blank)
+    return (f"{len(outline)}-gon blank ({abs(polygon_area(outline)):.5g} mm^2, "
+            f"{np.ptp(outline[:, 0]):.4g} x {np.ptp(outline[:, 1]):.4g} mm), {yarns}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,7 +97,8 @@ class MeshConfig:
     cell: Literal["quadrilateral", "triangle"] = setting("quadrilateral", "element shape")
     pattern: Literal["aligned", "free"] = setting(
         "aligned", "'aligned': element edges follow the yarns (rectangle: theta a multiple of "
-        "45; disc: an aligned central square); 'free': gmsh's unstructured mesh (may lock)")
+        "45; disc, polygon: a yarn lattice clipped to the outline, one strip of cells to it); "
+        "'free': gmsh's unstructured mesh (may lock)")
     size: float = setting(5.0, "element edge length (aligned: along the yarns); at most a third "
                           "of the blank's smallest extent", positive, "mm")
 
@@ -164,7 +213,8 @@ class BoundaryConfig:
     """Displacement components prescribed on a named boundary (formulas, mm); a component left
     out is free. Where two entries share nodes, the later entry wins there."""
 
-    on: str = setting("", "boundary name: rectangle left/right/bottom/top, disc edge, or "
+    on: str = setting("", "boundary name: rectangle left/right/bottom/top, disc or polygon "
+                      "edge, or "
                       "'boundary' (the whole outline)")
     ux: str | None = setting(None, "x displacement formula", unit="mm")
     uy: str | None = setting(None, "y displacement formula", unit="mm")
@@ -341,8 +391,10 @@ class JobConfig:
         blank = self.blank
         if blank.shape == "rectangle":
             extent, what = min(blank.length, blank.width), "min(blank.length, blank.width)"
-        else:
+        elif blank.shape == "disc":
             extent, what = 2.0 * blank.radius, "2 * blank.radius"
+        else:
+            extent, what = min(np.ptp(blank_outline(blank), axis=0)), "the polygon's smaller extent"
         largest = extent / MIN_ELEMENTS_ACROSS
         if self.mesh.size > largest:
             raise InputError(f"too coarse: {extent / self.mesh.size:.2g} elements across the "

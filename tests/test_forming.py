@@ -311,8 +311,8 @@ def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
 
 def test_hemisphere_45_on_a_disc_is_the_0_90_field_turned(tmp_path):
     """On a disc blank (an outline with no direction, unlike the square) the tools are
-    axisymmetric and the yarn-aligned O-grid turns with the yarns, so the +-45 problem is the
-    0/90 one turned by 45 degrees, mesh included: the shear fields agree point by point to
+    axisymmetric and the yarn-aligned clipped lattice turns with the yarns, so the +-45 problem is
+    the 0/90 one turned by 45 degrees, mesh included: the shear fields agree point by point to
     Newton's tolerance."""
     from mpi4py import MPI
     comm = MPI.COMM_WORLD

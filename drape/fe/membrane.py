@@ -178,6 +178,29 @@ class MembraneProblem:
         dx_law = ufl.dx(domain=msh, metadata={"quadrature_degree": self.degree})
         dx_extra = ufl.dx(domain=msh, metadata={"quadrature_degree": CONTRIBUTION_DEGREE})
         internal = ufl.inner(S, ufl.sym(F.T * ufl.grad(v))) * dx_law
+        strip = np.asarray(getattr(blank_mesh, "strip_cells", ()), dtype=np.int32)
+        self.strip_reduced = bool(self.comm.allreduce(len(strip))) and cell_name == "quadrilateral"
+        if self.strip_reduced:
+            # the cells between a clipped yarn lattice and the outline are not yarn-aligned:
+            # their yarn tension at the 2x2 points locks (intra-ply shear locking, docs/
+            # blanks.md); there it is integrated at the cell's centre only (selective reduced
+            # integration), the shear at the law's points as everywhere
+            from dolfinx import mesh as dmesh
+            n_all = msh.topology.index_map(2).size_local + msh.topology.index_map(2).num_ghosts
+            marker = np.zeros(n_all, dtype=np.int32)
+            marker[strip] = 1
+            tags = dmesh.meshtags(msh, 2, np.arange(n_all, dtype=np.int32), marker)
+            S_yarn = (params.mu * params.K1 * 0.5 * (C11 - 1.0) * ufl.outer(G1, G1)
+                      + params.mu * params.K2 * 0.5 * (C22 - 1.0) * ufl.outer(G2, G2))
+            S_shear = 0.5 * self.tau * P
+            dx_tag = ufl.Measure("dx", domain=msh, subdomain_data=tags,
+                                 metadata={"quadrature_degree": self.degree})
+            dx_centre = ufl.Measure("dx", domain=msh, subdomain_data=tags,
+                                    metadata={"quadrature_degree": 1})
+            virtual = ufl.sym(F.T * ufl.grad(v))
+            internal = (ufl.inner(S_yarn, virtual) * dx_tag(0)
+                        + ufl.inner(S_yarn, virtual) * dx_centre(1)
+                        + ufl.inner(S_shear, virtual) * dx_law)
         jacobian = ufl.derivative(internal, u, du) + self.dtau * dE12(du) * 2.0 * dE12(v) * dx_law
         residual = internal
         self.damping_constant = fem.Constant(msh, self.damping)
@@ -450,6 +473,25 @@ class MembraneProblem:
         values = np.asarray(values, dtype=float).reshape(self.n_cells, self.nq, -1)
         averaged = np.einsum("cq,cqk->ck", self._average_weights, values)
         return averaged[:, 0] if averaged.shape[1] == 1 else averaged
+
+    def yarn_strains(self) -> np.ndarray:
+        """|yarn strain| (the larger of warp and weft, S_ii / (mu K_i)) at the law's points, as
+        the residual sees it: in the strip cells whose yarn tension is integrated at the centre
+        (:attr:`strip_reduced`), their cell's mean (the centre's value for a linear field), not
+        the 2x2 points' values, which carry the hourglass shape the centre does not feel."""
+        r, p = self.response, self.law.params
+        if r is None or not r.tau.size:
+            return np.zeros(0)
+        e1, e2 = r.S11 / (p.mu * p.K1), r.S22 / (p.mu * p.K2)
+        if self.strip_reduced:
+            strip = self.blank_mesh.strip_cells
+            strip = strip[strip < self.n_cells]
+            e1, e2 = (np.asarray(e, dtype=float).reshape(self.n_cells, self.nq).copy()
+                      for e in (e1, e2))
+            for e in (e1, e2):
+                e[strip] = self.cell_average(e.ravel())[strip][:, None]
+            e1, e2 = e1.ravel(), e2.ravel()
+        return np.maximum(np.abs(e1), np.abs(e2))
 
     def yarn_directions(self) -> tuple[np.ndarray, np.ndarray]:
         """Deformed warp and weft directions F G1, F G2 at the law's points, (P, 3) each."""

@@ -20,6 +20,9 @@ class BlankMesh:
     facet_tags: object           # dolfinx.mesh.MeshTags (dimension 1)
     boundaries: dict[str, int]   # name -> facet tag
     description: str
+    #: local cells (owned and ghosts) between a clipped yarn lattice and the outline: not
+    #: yarn-aligned
+    strip_cells: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int32))
 
     def facets(self, name: str) -> np.ndarray:
         """Local facet indices of a named boundary ("boundary": the whole outline)."""
@@ -37,7 +40,7 @@ def create_blank_mesh(comm, blank, mesh_config, centred: bool = False) -> BlankM
     from dolfinx.io import gmshio
 
     from drape.errors import InputError
-    from drape.geometry.blank import BLANK, build_blank
+    from drape.geometry.blank import BLANK, BLANK_STRIP, build_blank
 
     error, names = None, None
     if comm.rank == 0:
@@ -45,7 +48,8 @@ def create_blank_mesh(comm, blank, mesh_config, centred: bool = False) -> BlankM
         gmsh.option.setNumber("General.Terminal", 0)
         try:
             names = build_blank(gmsh, blank.shape, length=blank.length, width=blank.width,
-                                radius=blank.radius, yarn_angle=blank.yarn_angle,
+                                radius=blank.radius, points=blank.points,
+                                yarn_angle=blank.yarn_angle,
                                 cell=mesh_config.cell, pattern=mesh_config.pattern,
                                 size=mesh_config.size)
         except InputError as failure:
@@ -64,7 +68,7 @@ def create_blank_mesh(comm, blank, mesh_config, centred: bool = False) -> BlankM
     # resume must get the same partition for the same numbers (drape.io.checkpoint).
     os.environ.setdefault("SCOTCH_PTHREAD_NUMBER", "1")
     try:
-        msh, _, facet_tags = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2)
+        msh, cell_tags, facet_tags = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2)
     finally:
         if comm.rank == 0:
             gmsh.finalize()
@@ -72,9 +76,15 @@ def create_blank_mesh(comm, blank, mesh_config, centred: bool = False) -> BlankM
     if centred and blank.shape == "rectangle":
         msh.geometry.x[:, 0] -= blank.length / 2.0
         msh.geometry.x[:, 1] -= blank.width / 2.0
-    boundaries = {name: tag for name, tag in names.items() if name != BLANK}
+    boundaries = {name: tag for name, tag in names.items() if name not in (BLANK, BLANK_STRIP)}
     cells = msh.topology.index_map(2).size_global
     kind = msh.topology.cell_type.name
+    strip = (cell_tags.find(names[BLANK_STRIP]) if BLANK_STRIP in names
+             else np.zeros(0, dtype=np.int32))
+    n_local = msh.topology.index_map(2).size_local
+    n_strip = comm.allreduce(int(np.sum(strip < n_local)))
     description = (f"{cells} {kind} cells, {msh.geometry.index_map().size_global} nodes, "
-                   f"{mesh_config.pattern} pattern")
-    return BlankMesh(msh, facet_tags, boundaries, description)
+                   f"{mesh_config.pattern} pattern"
+                   + (f" ({n_strip} of them in the strip between the yarn lattice and the "
+                      f"outline)" if n_strip else ""))
+    return BlankMesh(msh, facet_tags, boundaries, description, strip)

@@ -45,6 +45,8 @@ from drape.errors import InputError
 from drape.fe.job_part import JobPart
 from drape.fe.membrane import PointContribution
 from drape.forming.contact import elastic_slip, gap_for_pressure, traction
+from drape.job import describe_blank
+from drape.reports.oscillation import OSCILLATION_WARNING
 
 # added to a quasi-static forming run's failure: where the steps shrink as the blank wrinkles
 # or snaps into a clearance, inertia carried the runs of docs/forming.md through
@@ -140,7 +142,23 @@ def smallest_wrapped_radius(config) -> float | None:
 def blank_half_extents(blank) -> tuple[float, float]:
     if blank.shape == "disc":
         return blank.radius, blank.radius
+    if blank.shape == "polygon":
+        from drape.job import blank_outline
+        outline = blank_outline(blank)
+        return tuple(float(v) for v in np.abs(outline).max(axis=0))
     return blank.length / 2.0, blank.width / 2.0
+
+
+def _polygon_radii(blank) -> tuple[float, float]:
+    """A polygon blank's distance from the tools' axis to its nearest edge (negative when the
+    axis is outside it) and to its farthest vertex (mm)."""
+    from drape.geometry.blank import _closest, _inside
+    from drape.job import blank_outline
+    outline = blank_outline(blank)
+    origin = np.zeros((1, 2))
+    gap = float(_closest(outline, origin)[0][0])
+    reach = float(np.linalg.norm(outline, axis=1).max())
+    return (gap if _inside(outline, origin)[0] else -gap), reach
 
 
 def check_forming(config) -> None:
@@ -164,8 +182,37 @@ def check_forming(config) -> None:
                                   "(the punch would hit the die)")
     hx, hy = blank_half_extents(config.blank)
     reach = math.hypot(hx, hy) if config.blank.shape == "rectangle" else hx
-    key = "blank.radius" if config.blank.shape == "disc" else "blank.length"
-    if tools.kind == "hemisphere":
+    key = {"disc": "blank.radius", "polygon": "blank.points"}.get(config.blank.shape,
+                                                                  "blank.length")
+    if config.blank.shape == "polygon":
+        inner, reach = _polygon_radii(config.blank)
+        if tools.kind == "hemisphere":
+            opening = dims.die_opening_radius + dims.die_fillet_radius
+            if inner <= opening:
+                raise InputError("the blank does not cover the die opening", key=key,
+                                 value=f"its edge {inner:.4g} mm from the tools' axis",
+                                 expected=f"a polygon around x = y = 0 reaching beyond r = "
+                                          f"{opening:g} mm all round")
+            if reach > dims.die_outer_radius:
+                raise InputError("the blank reaches beyond the die", key=key,
+                                 value=f"a vertex at r = {reach:.4g} mm",
+                                 expected=f"vertices within r = {dims.die_outer_radius:g} mm")
+        elif tools.kind == "double_dome":
+            from drape.geometry.blank import _inside
+            from drape.job import blank_outline
+            outline = blank_outline(config.blank)
+            ox = dims.dome_offset + dims.punch_width / 2 + dims.clearance + dims.die_entry_radius
+            oy = dims.punch_width / 2 + dims.clearance + dims.die_entry_radius
+            corners = np.array([[ox, oy], [-ox, oy], [-ox, -oy], [ox, -oy]])
+            if not _inside(outline, corners).all() or min(hx, hy) <= min(ox, oy):
+                raise InputError("the blank does not cover the die cavity", key=key,
+                                 expected=f"a polygon around the cavity |x| < {ox:g}, "
+                                          f"|y| < {oy:g} mm")
+            if hx > dims.die_length / 2 or hy > dims.die_width / 2:
+                raise InputError("the blank reaches beyond the die", key=key,
+                                 expected=f"|x| <= {dims.die_length / 2:g} and |y| <= "
+                                          f"{dims.die_width / 2:g} mm")
+    elif tools.kind == "hemisphere":
         opening = dims.die_opening_radius + dims.die_fillet_radius
         if min(hx, hy) <= opening:
             raise InputError("the blank does not cover the die opening", key=key,
@@ -474,6 +521,12 @@ class Forming(JobPart):
                f"{self.process.punch_speed:g} m/s after {self.process.punch_ramp:g} mm"
                if self.process.areal_density > 0 else ""))
 
+    @property
+    def title(self) -> str:
+        """The config's title followed by what the blank really is (its shape, size, yarns),
+        so that a --set of the blank never leaves a title describing another one."""
+        return ", ".join(p for p in (self.config.title, describe_blank(self.config.blank)) if p)
+
     # --- wiring -----------------------------------------------------------------------------------
     def bind(self, problem, motion=None) -> None:
         """Reference area of each contribution point (mm^2), once the problem exists."""
@@ -701,11 +754,17 @@ class Forming(JobPart):
         if self.comm.rank == 0:
             forces = [r.get("punch_force", 0.0) for r in rows]
             summary.update({
-                "title": self.config.title, "tools": self.kind,
+                "title": self.title, "blank": describe_blank(self.config.blank),
+                "tools": self.kind,
                 "yarn_angle_deg": self.config.blank.yarn_angle,
                 "stroke_mm": rows[-1].get("stroke", 0.0), "configured_stroke_mm": self.stroke,
                 "tools_full_stroke_mm": full_stroke(self.config),
                 "max_punch_force_N": float(max(forces)),
+                # cell-to-cell shear oscillation (drape/reports/oscillation.py, docs/blanks.md)
+                "shear_oscillation_deg": float(rows[-1].get("shear_oscillation_deg", 0.0)),
+                "max_shear_oscillation_deg": float(max(r.get("shear_oscillation_deg", 0.0)
+                                                       for r in rows)),
+                "shear_oscillation_warning_deg": OSCILLATION_WARNING,
                 "punch_force_at_end_N": float(forces[-1]),
                 **self._holder_summary(rows),
                 # the blank's inertia: a dynamic run's forces depend on these (docs/forming.md)
@@ -721,10 +780,11 @@ class Forming(JobPart):
                 "wall_time_s": seconds, "ranks": self.comm.size,
                 "cells": problem.mesh.topology.index_map(problem.mesh.topology.dim).size_global,
             })
+            summary.update(reports.strip_summary(cells, self.config.blank.yarn_angle))
             folder = Path(folder)
             reports.write_force_stroke(folder, rows)
-            reports.plot_force_stroke(folder, rows, self.config.title)
-            reports.plot_shear_maps(folder, cells, locking, self.config.title)
+            reports.plot_force_stroke(folder, rows, self.title)
+            reports.plot_shear_maps(folder, cells, locking, self.title)
             with (folder / SUMMARY_FILE).open("w") as stream:
                 json.dump(summary, stream, indent=2)
                 stream.write("\n")

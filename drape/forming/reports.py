@@ -33,12 +33,41 @@ def gather_cells(problem) -> dict | None:
     reference = X[dofs][:, :, :2]
     formed = X[dofs] + u[dofs]
     shear = problem.cell_average(problem.response.gamma_t_deg)
-    parts = problem.comm.gather((reference, formed, shear), root=0)
+    strain = problem.yarn_strains().reshape(n, -1).max(axis=1)
+    strip = np.zeros(n, dtype=bool)
+    local = problem.blank_mesh.strip_cells
+    strip[local[local < n]] = True
+    parts = problem.comm.gather((reference, formed, shear, strain, strip), root=0)
     if problem.comm.rank != 0:
         return None
     return {"reference": np.concatenate([p[0] for p in parts]),
             "formed": np.concatenate([p[1] for p in parts]),
-            "shear": np.concatenate([p[2] for p in parts])}
+            "shear": np.concatenate([p[2] for p in parts]),
+            "yarn_strain": np.concatenate([p[3] for p in parts]),
+            "strip": np.concatenate([p[4] for p in parts])}
+
+
+def strip_summary(cells: dict, yarn_angle: float) -> dict:
+    """summary.json's entries on the cells between a clipped yarn lattice and the outline
+    (disc and polygon blanks, docs/blanks.md): how many, their share of the blank's area, how
+    far their edges turn from the yarns (0 to 45 deg), and the largest yarn strain in them
+    and in the yarn-aligned cells, the measure of their locking."""
+    from drape.geometry.blank import misalignment_deg
+    strip = cells["strip"]
+    if not strip.any():
+        return {}
+    outline = cells["reference"]
+    x, y = outline[:, :, 0], outline[:, :, 1]
+    area = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
+    nodes = outline.reshape(-1, 2)
+    quads = np.arange(len(nodes)).reshape(outline.shape[:2])
+    off = misalignment_deg(nodes, quads, yarn_angle)[strip]
+    strain = cells["yarn_strain"]
+    return {"strip_cells": int(strip.sum()),
+            "strip_area_fraction": float(area[strip].sum() / area.sum()),
+            "strip_misalignment_deg": {"mean": float(off.mean()), "max": float(off.max())},
+            "max_yarn_strain_strip": float(strain[strip].max()),
+            "max_yarn_strain_aligned": float(strain[~strip].max()) if (~strip).any() else 0.0}
 
 
 def shear_summary(problem, locking_angle: float, comm) -> dict:
@@ -71,12 +100,20 @@ def shear_summary(problem, locking_angle: float, comm) -> dict:
 
 def edge_points(blank) -> dict[str, tuple[float, float]]:
     """Reference points where draw-in is reported: mid-sides and corners of a (centred)
-    rectangle, eight points 45 deg apart on a disc's edge."""
+    rectangle, eight points 45 deg apart on a disc's edge, a polygon's vertices (counter-
+    clockwise from the first given) and the middles of its edges."""
     if blank.shape == "rectangle":
         a, b = blank.length / 2.0, blank.width / 2.0
         return {"mid_right": (a, 0.0), "mid_top": (0.0, b), "mid_left": (-a, 0.0),
                 "mid_bottom": (0.0, -b), "corner_top_right": (a, b), "corner_top_left": (-a, b),
                 "corner_bottom_left": (-a, -b), "corner_bottom_right": (a, -b)}
+    if blank.shape == "polygon":
+        from drape.job import blank_outline
+        outline = blank_outline(blank)
+        middles = 0.5 * (outline + np.roll(outline, -1, axis=0))
+        points = {f"vertex_{k}": tuple(p) for k, p in enumerate(outline.tolist())}
+        points.update({f"mid_edge_{k}": tuple(p) for k, p in enumerate(middles.tolist())})
+        return points
     r = blank.radius
     return {f"edge_{angle}deg": (r * np.cos(np.radians(angle)), r * np.sin(np.radians(angle)))
             for angle in range(0, 360, 45)}
