@@ -405,7 +405,7 @@ class JobConfig:
 
 
     def _validate_forming(self):
-        from drape.forming.press import check_forming
+        from drape.forming.checks import check_forming
         check_forming(self)
 
 

@@ -612,7 +612,7 @@ def test_double_dome_configs_press_to_full_stroke(tmp_path, config):
     top of it to the neighbouring quadrature point, 7.46 mm away). 0/90: the largest shear
     lies where a kinematic drape of the same ply on the die (drape.forming.kinematic, a force-free
     method) shears most, at the corners of the domes (its kinematic percentile > 90)."""
-    from drape.forming.press import full_stroke
+    from drape.forming.checks import full_stroke
     from drape.geometry.tools import analytic_double_dome_tools
     from drape.job import load_job
     from drape.forming.kinematic import compare_peaks, drape_fishnet

@@ -56,7 +56,7 @@ def test_a_bad_holder_control_is_refused_with_the_key_and_the_choices(cad):
 
 def test_a_force_controlled_step_holder_needs_a_die(cad):
     from drape.errors import InputError
-    from drape.forming.press import check_forming, holder_mode
+    from drape.forming.checks import check_forming, holder_mode
     job = load(cad / "hemisphere_step.toml")
     assert holder_mode(job.config) == "force"                  # the default
     assert holder_mode(load(cad / "position" / "hemisphere_step.toml").config) == "position"

@@ -1,0 +1,160 @@
+"""What a forming job's config must satisfy before anything is built: a stroke within the
+tools, a blank on the die and over its opening, a mesh fine enough for the tools' fillets
+(InputError naming the key). Config-level only: no DOLFINx, no contact; :mod:`drape.job`
+calls :func:`check_forming` when it loads a job with a ``[process]`` table."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from drape.errors import InputError
+
+
+def tool_set(config):
+    """The chosen tool dimensions ([tools.hemisphere], [tools.double_dome] or [tools.step])."""
+    from drape.geometry.tools import ToolsConfig
+    tools = config.tools or ToolsConfig()
+    return tools, {"hemisphere": tools.hemisphere, "double_dome": tools.double_dome,
+                   "step": tools.step}[tools.kind]
+
+
+def holder_mode(config) -> str | None:
+    """How the holder is driven: "force" (to process.holder_force; the built-in holders and a
+    STEP holder by default), "position" (a STEP holder with control = "position") or None (no
+    holder: none given, or a force-controlled one with holder_force = 0)."""
+    tools, dims = tool_set(config)
+    if tools.kind == "step":
+        if not dims.holder.given:
+            return None
+        if dims.holder.control == "position":
+            return "position"
+    return "force" if config.process.holder_force > 0 else None
+
+
+def full_stroke(config) -> float | None:
+    tools, dims = tool_set(config)
+    return None if tools.kind == "step" else dims.full_stroke
+
+
+def stroke_of(config) -> float:
+    stroke = config.process.stroke
+    return stroke if stroke is not None else full_stroke(config)
+
+
+def smallest_wrapped_radius(config) -> float | None:
+    """The smallest tool radius the fabric wraps around (mm): die entry and punch edge fillets."""
+    tools, dims = tool_set(config)
+    if tools.kind == "hemisphere":
+        return min(dims.die_fillet_radius, dims.punch_radius)
+    if tools.kind == "double_dome":
+        return min(dims.die_entry_radius, dims.punch_edge_radius)
+    return None
+
+
+def blank_half_extents(blank) -> tuple[float, float]:
+    if blank.shape == "disc":
+        return blank.radius, blank.radius
+    if blank.shape == "polygon":
+        from drape.job import blank_outline
+        outline = blank_outline(blank)
+        return tuple(float(v) for v in np.abs(outline).max(axis=0))
+    return blank.length / 2.0, blank.width / 2.0
+
+
+def _polygon_radii(blank) -> tuple[float, float]:
+    """A polygon blank's distance from the tools' axis to its nearest edge (negative when the
+    axis is outside it) and to its farthest vertex (mm)."""
+    from drape.geometry.blank import _closest, _inside
+    from drape.job import blank_outline
+    outline = blank_outline(blank)
+    origin = np.zeros((1, 2))
+    gap = float(_closest(outline, origin)[0][0])
+    reach = float(np.linalg.norm(outline, axis=1).max())
+    return (gap if _inside(outline, origin)[0] else -gap), reach
+
+
+def check_forming(config) -> None:
+    """Cross-checks of a forming job (InputError naming the key): stroke within the tools, blank
+    on the die and over its opening, mesh fine enough for the tools' fillets."""
+    tools, dims = tool_set(config)
+    process = config.process
+    limit = full_stroke(config)
+    if tools.kind == "step" and process.stroke is None:
+        raise InputError("STEP tools have no known full stroke", key="process.stroke",
+                         expected="the punch travel in mm")
+    if tools.kind == "step" and holder_mode(config) == "force" and not dims.die.given:
+        raise InputError("a force-controlled holder needs a die to press the blank against",
+                         key="tools.step.holder.control", value=dims.holder.control,
+                         expected="a [tools.step.die] file, control = \"position\", or "
+                                  "process.holder_force = 0 (no holder)")
+    if limit is not None and process.stroke is not None and process.stroke > limit + 1e-9:
+        raise InputError("the stroke is larger than the tools allow", key="process.stroke",
+                         value=process.stroke,
+                         expected=f"<= {limit:g} mm, the full stroke of these {tools.kind} tools "
+                                  "(the punch would hit the die)")
+    hx, hy = blank_half_extents(config.blank)
+    reach = math.hypot(hx, hy) if config.blank.shape == "rectangle" else hx
+    key = {"disc": "blank.radius", "polygon": "blank.points"}.get(config.blank.shape,
+                                                                  "blank.length")
+    if config.blank.shape == "polygon":
+        inner, reach = _polygon_radii(config.blank)
+        if tools.kind == "hemisphere":
+            opening = dims.die_opening_radius + dims.die_fillet_radius
+            if inner <= opening:
+                raise InputError("the blank does not cover the die opening", key=key,
+                                 value=f"its edge {inner:.4g} mm from the tools' axis",
+                                 expected=f"a polygon around x = y = 0 reaching beyond r = "
+                                          f"{opening:g} mm all round")
+            if reach > dims.die_outer_radius:
+                raise InputError("the blank reaches beyond the die", key=key,
+                                 value=f"a vertex at r = {reach:.4g} mm",
+                                 expected=f"vertices within r = {dims.die_outer_radius:g} mm")
+        elif tools.kind == "double_dome":
+            from drape.geometry.blank import _inside
+            from drape.job import blank_outline
+            outline = blank_outline(config.blank)
+            ox = dims.dome_offset + dims.punch_width / 2 + dims.clearance + dims.die_entry_radius
+            oy = dims.punch_width / 2 + dims.clearance + dims.die_entry_radius
+            corners = np.array([[ox, oy], [-ox, oy], [-ox, -oy], [ox, -oy]])
+            if not _inside(outline, corners).all() or min(hx, hy) <= min(ox, oy):
+                raise InputError("the blank does not cover the die cavity", key=key,
+                                 expected=f"a polygon around the cavity |x| < {ox:g}, "
+                                          f"|y| < {oy:g} mm")
+            if hx > dims.die_length / 2 or hy > dims.die_width / 2:
+                raise InputError("the blank reaches beyond the die", key=key,
+                                 expected=f"|x| <= {dims.die_length / 2:g} and |y| <= "
+                                          f"{dims.die_width / 2:g} mm")
+    elif tools.kind == "hemisphere":
+        opening = dims.die_opening_radius + dims.die_fillet_radius
+        if min(hx, hy) <= opening:
+            raise InputError("the blank does not cover the die opening", key=key,
+                             value=2 * min(hx, hy) if config.blank.shape == "rectangle" else hx,
+                             expected=f"a blank reaching beyond r = {opening:g} mm all round")
+        if reach > dims.die_outer_radius:
+            raise InputError("the blank reaches beyond the die", key=key,
+                             value=getattr(config.blank, key.split(".")[1]),
+                             expected=f"a blank within r = {dims.die_outer_radius:g} mm, corners "
+                                      f"included (they are at r = {reach:.4g} mm)")
+    elif tools.kind == "double_dome":
+        opening_x = dims.dome_offset + dims.punch_width / 2 + dims.clearance + dims.die_entry_radius
+        opening_y = dims.punch_width / 2 + dims.clearance + dims.die_entry_radius
+        if hx <= opening_x or hy <= opening_y:
+            raise InputError("the blank does not cover the die cavity", key=key,
+                             value=(2 * hx, 2 * hy),
+                             expected=f"length > {2 * opening_x:g} and "
+                                      f"width > {2 * opening_y:g} mm")
+        if hx > dims.die_length / 2 or hy > dims.die_width / 2:
+            raise InputError("the blank reaches beyond the die", key=key, value=(2 * hx, 2 * hy),
+                             expected=f"length <= {dims.die_length:g} and width <= "
+                                      f"{dims.die_width:g} mm")
+    radius = smallest_wrapped_radius(config)
+    if radius is not None:
+        largest = math.pi / 4 * radius
+        if config.mesh.size > largest:
+            raise InputError("the mesh is too coarse for the tools", key="mesh.size",
+                             value=config.mesh.size,
+                             expected=f"<= {largest:.3g} mm: two elements over the quarter arc "
+                                      "of the smallest fillet the fabric wraps "
+                                      f"(R = {radius:g} mm)")
