@@ -90,6 +90,13 @@ def describe_blank(blank) -> str:
             f"{np.ptp(outline[:, 0]):.4g} x {np.ptp(outline[:, 1]):.4g} mm), {yarns}")
 
 
+def compose_title(title: str, blank) -> str:
+    """The config's title followed by what the blank really is, so that a --set of the blank
+    never leaves a title describing another one; a title that already says it is kept."""
+    described = describe_blank(blank)
+    return title if described in title else ", ".join(p for p in (title, described) if p)
+
+
 @dataclasses.dataclass(frozen=True)
 class MeshConfig:
     """How gmsh meshes the blank."""

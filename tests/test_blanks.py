@@ -198,3 +198,16 @@ def test_disc_and_octagon_shear_fields_have_the_square_symmetry(formed):
     pole = r < 0.3 * R
     chebyshev = np.degrees(xy[pole, 0] * xy[pole, 1] / R ** 2)
     assert np.abs(gamma[pole] - chebyshev).max() < 1.5
+
+
+def test_title_names_the_blank_once():
+    """The composed title adds the blank's description to the config's title, unless the
+    title already holds it (a user's own full title is not doubled)."""
+    from drape.job import BlankConfig, compose_title
+    disc = BlankConfig(shape="disc", radius=100.0)
+    assert compose_title("hemisphere", disc) == "hemisphere, disc blank R 100 mm, yarns 0/90"
+    square = BlankConfig(length=200.0, width=200.0)
+    full = "hemisphere, 200 x 200 mm blank, yarns 0/90"
+    assert compose_title(full, square) == full
+    assert compose_title(full, disc) == full + ", disc blank R 100 mm, yarns 0/90"
+    assert compose_title("", disc) == "disc blank R 100 mm, yarns 0/90"

@@ -46,7 +46,7 @@ from drape.fe.job_part import JobPart
 from drape.fe.membrane import PointContribution
 from drape.forming.checks import full_stroke, holder_mode, stroke_of, tool_set
 from drape.forming.contact import elastic_slip, gap_for_pressure, traction
-from drape.job import describe_blank
+from drape.job import compose_title, describe_blank
 from drape.reports.oscillation import OSCILLATION_WARNING
 
 # added to a quasi-static forming run's failure: where the steps shrink as the blank wrinkles
@@ -376,7 +376,7 @@ class Forming(JobPart):
     def title(self) -> str:
         """The config's title followed by what the blank really is (its shape, size, yarns),
         so that a --set of the blank never leaves a title describing another one."""
-        return ", ".join(p for p in (self.config.title, describe_blank(self.config.blank)) if p)
+        return compose_title(self.config.title, self.config.blank)
 
     # --- wiring -----------------------------------------------------------------------------------
     def bind(self, problem, motion=None) -> None:
