@@ -123,6 +123,7 @@ def test_a_holder_force_more_than_five_percent_off_is_a_warning_with_the_step():
 
 # --- candidate lists ------------------------------------------------------------------------
 
+@pytest.mark.serial   # no MPI in it: under mpirun each rank would do the same
 @pytest.mark.parametrize("cutoff", [None, 3.0])
 def test_candidate_lists_give_the_exact_closest_points_as_points_move(cutoff):
     """MeshedSurface with candidate lists (margin 0.5 mm) on an irregular sheet, 2000 points
