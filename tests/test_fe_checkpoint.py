@@ -140,10 +140,30 @@ def check_same_as_uninterrupted(resumed, uninterrupted):
     check_datasets_exist(resumed, items)
 
 
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """The short job run uninterrupted, once per number of ranks and extra arguments (the
+    reference of the resume tests), made when first asked for: get(ranks, extra) -> folder."""
+    made = {}
+
+    def get(ranks=1, extra=()):
+        key = (ranks, tuple(extra))
+        if key not in made:
+            folder = tmp_path_factory.mktemp("uninterrupted") / "run"
+            full = drape("run", CONFIGS / "bias_extension.toml", "--output", folder, *SHORT,
+                         *extra, ranks=ranks)
+            assert full.returncode == 0, full.stderr
+            # a finished run's fields.h5 is whole: the copy is removed
+            assert not (folder / "checkpoint.h5").exists()
+            made[key] = folder
+        return made[key]
+    return get
+
+
 @pytest.mark.serial
 @pytest.mark.parametrize("ranks", [1, 2])
-def test_sigterm_then_resume_gives_the_uninterrupted_result(tmp_path, ranks):
-    stopped, uninterrupted = tmp_path / "stopped", tmp_path / "uninterrupted"
+def test_sigterm_then_resume_gives_the_uninterrupted_result(tmp_path, uninterrupted, ranks):
+    stopped = tmp_path / "stopped"
     rc, err = run_and_terminate(stopped, ranks)
     step = check_stopped_folder(stopped, rc, err)
     print(f"\n{ranks} rank(s): stopped after step {step}")
@@ -162,24 +182,22 @@ def test_sigterm_then_resume_gives_the_uninterrupted_result(tmp_path, ranks):
     done = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT, "--resume",
                  ranks=ranks)
     assert done.returncode == 0, done.stderr
-    full = drape("run", CONFIGS / "bias_extension.toml", "--output", uninterrupted, *SHORT,
-                 ranks=ranks)
-    assert full.returncode == 0, full.stderr
-    check_same_as_uninterrupted(stopped, uninterrupted)
+    check_same_as_uninterrupted(stopped, uninterrupted(ranks))
 
 
 @pytest.mark.serial
 @pytest.mark.parametrize("torn, surfaces", [(False, []), (True, []),
                                             (False, ["--set", "surfaces=0"])],
                          ids=["whole", "torn", "outer-surface-only"])
-def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path, torn, surfaces):
+def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path, uninterrupted,
+                                                                      torn, surfaces):
     """SIGKILL leaves steps after the last periodic checkpoint in steps.csv and fields.xdmf/h5:
     the resume drops them and writes them again, once. ``torn``: the kill came while a step's
     fields were being written and left fields.h5 unreadable (here: cut to two thirds of its
     length); the resume takes the checkpointed steps' fields from the checkpoint's copy.
     ``surfaces = 0`` (the outer surface alone: the law has no centres to keep) once failed
     writing its first checkpoint."""
-    folder, uninterrupted = tmp_path / "killed", tmp_path / "uninterrupted"
+    folder = tmp_path / "killed"
     short = [*SHORT, *surfaces]
     process = subprocess.Popen(command("run", CONFIGS / "bias_extension.toml", "--output", folder,
                                        *short), cwd=REPO, env=ENV, stderr=subprocess.DEVNULL)
@@ -196,12 +214,10 @@ def test_resume_after_a_hard_kill_drops_the_steps_after_the_checkpoint(tmp_path,
         os.truncate(h5, 2 * h5.stat().st_size // 3)
     done = drape("run", CONFIGS / "bias_extension.toml", "--output", folder, *short, "--resume")
     assert done.returncode == 0, done.stderr
-    full = drape("run", CONFIGS / "bias_extension.toml", "--output", uninterrupted, *short)
-    assert full.returncode == 0, full.stderr
-    check_same_as_uninterrupted(folder, uninterrupted)
-    # a finished run's fields.h5 is whole: the copy is removed
+    check_same_as_uninterrupted(folder, uninterrupted(1, surfaces))
+    # a finished run's fields.h5 is whole: the copy is removed (and from the uninterrupted
+    # run's: the fixture checks it)
     assert not (folder / "checkpoint.h5").exists()
-    assert not (uninterrupted / "checkpoint.h5").exists()
 
 
 @pytest.mark.serial

@@ -1,7 +1,8 @@
 """`drape run` as users run it: every shipped job config (its short version) gives serially and
 under `mpirun -n 2` the same results (displacement within 1e-8 mm and tau within 1e-8 relative,
-from the partition-independent result.npz); bad input is exit code 2 and a failed run exit code
-1, each with a one-line message and no traceback (every bad input: tests/test_bad_inputs.py)."""
+from the partition-independent result.npz) and prints nothing under --quiet; bad input is exit
+code 2 and a failed run exit code 1, each with a one-line message and no traceback (every bad
+input: tests/test_bad_inputs.py)."""
 
 import os
 import subprocess
@@ -76,6 +77,7 @@ def test_one_and_two_ranks_give_the_same_results(tmp_path, config):
         done = drape("run", CONFIGS / config, "--output", folder, *short, *NO_FIELDS,
                      ranks=ranks)
         assert done.returncode == 0, done.stderr
+        assert done.stdout == "", done.stdout                  # --quiet: no progress
         results[ranks] = np.load(folder / "result.npz")
         steps = (folder / "steps.csv").read_text().splitlines()
         results[ranks, "steps"] = [line.split(",")[:2] for line in steps]

@@ -2,7 +2,8 @@
 forming run writes, penetration, the force-controlled holder, the double dome starting.
 
 The runs are short (the punch 5 mm down on the coarsest mesh the tools allow): the default
-20 mm run takes minutes (docs/forming.md).
+20 mm run takes minutes (docs/forming.md). The tests that run forming jobs in this process are
+marked ``two_ranks`` (tests/conftest.py): the suite runs them once, under `mpirun -n 2`.
 """
 
 import csv
@@ -12,10 +13,12 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from conftest import CONFIGS
+from conftest import CONFIGS, HEMISPHERE_SHORT
 from fe_helpers import central_difference, residual
 
-SHORT = ["process.stroke=5", "steps.initial=0.05", "steps.maximum=0.2"]
+SHORT = HEMISPHERE_SHORT
+#: 5 mm in fixed 0.5 mm steps, no fields written
+FIXED = ["steps.initial=0.1", "steps.maximum=0.1", "output.xdmf=false"]
 
 
 def run(config, folder, overrides=(), on_step=None):
@@ -42,12 +45,24 @@ def assert_same_steps(a, b, folders, keys, bound, holder):
 
 
 @pytest.fixture(scope="module")
-def hemisphere(tmp_path_factory):
-    from mpi4py import MPI
-    folder = tmp_path_factory.mktemp("hemisphere") if MPI.COMM_WORLD.rank == 0 else None
-    folder = MPI.COMM_WORLD.bcast(folder, root=0)
-    job, summary = run("hemisphere.toml", folder)
+def hemisphere(hemisphere_5mm):
+    """The default hemisphere, 5 mm (tests/conftest.py; tests/test_step_tools.py uses it too)."""
+    job, summary, folder, _ = hemisphere_5mm
     return job, summary, folder
+
+
+@pytest.fixture(scope="module")
+def converged(tmp_path_factory):
+    """The hemisphere on FIXED steps converged to 1e-10 with the consistent tangent (no
+    neutral-loading band): the reference of both the forming tolerance's and the band's test
+    (300 iterations allowed: the band's run needs more than 30 at 1e-10; this one does not).
+    (summary, folder)."""
+    from mpi4py import MPI
+    folder = tmp_path_factory.mktemp("converged") if MPI.COMM_WORLD.rank == 0 else None
+    folder = MPI.COMM_WORLD.bcast(folder, root=0)
+    _, summary = run("hemisphere.toml", folder, FIXED + [
+        "solver.rtol=1e-10", "solver.neutral_loading_band=0", "solver.max_iterations=300"])
+    return summary, folder
 
 
 def rows_of(folder, name):
@@ -55,6 +70,7 @@ def rows_of(folder, name):
         return list(csv.DictReader(stream))
 
 
+@pytest.mark.two_ranks
 def test_outputs_of_a_forming_run(hemisphere):
     job, summary, folder = hemisphere
     for name in ("fields.xdmf", "steps.csv", "force_stroke.csv", "force_stroke.png",
@@ -87,6 +103,7 @@ def test_outputs_of_a_forming_run(hemisphere):
     assert "contact_pressure" in (folder / "fields.xdmf").read_text()
 
 
+@pytest.mark.two_ranks
 def test_the_forming_jacobian_is_the_derivative_of_the_residual(shared_tmp):
     """At the last step of a 5 mm hemisphere run (punch, die and holder in contact), half a
     step on (Newton's ground), the assembled Jacobian's action J d against central differences
@@ -151,6 +168,7 @@ def test_the_forming_jacobian_is_the_derivative_of_the_residual(shared_tmp):
     assert size > 0.1 and bare <= 1e-9 * size and error <= 2e-2 * size
 
 
+@pytest.mark.two_ranks
 def test_penetration_stays_far_below_the_element_size(hemisphere):
     """The smoothed penalty pushes from g0 = 0.05 h off a tool's surface and reaches the plain
     penalty's slope at the surface (docs/forming.md); at the pressures of these runs the fabric
@@ -161,6 +179,7 @@ def test_penetration_stays_far_below_the_element_size(hemisphere):
         assert float(row["max_penetration"]) < 0.01 * h, row["step"]
 
 
+@pytest.mark.two_ranks
 @pytest.mark.parametrize("areal_density", [0.0, 1.0])
 def test_a_stalled_quasi_static_forming_run_suggests_the_blanks_inertia(shared_tmp,
                                                                          areal_density):
@@ -214,7 +233,8 @@ def mirror_images(xy, gamma):
     return mirrored
 
 
-def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp):
+@pytest.mark.two_ranks
+def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp, converged):
     """The forming configs stop Newton at a residual 1e-4 of the step's first (solver.rtol).
     On the same load steps (5 mm in fixed 0.5 mm steps) as a run converged to 1e-10:
     - every step's forces within 1e-4 of the holder's 200 N, the largest external force, which
@@ -224,17 +244,15 @@ def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp):
       (total Lagrangian): at 5 mm the punch force and the shear field within 1e-4 of their own
       size;
     - in fewer iterations (docs/forming.md, "Newton's tolerance")."""
-    fixed = ["steps.initial=0.1", "steps.maximum=0.1", "output.xdmf=false"]
-    job, loose = run("hemisphere.toml", shared_tmp / "loose", fixed)
+    job, loose = run("hemisphere.toml", shared_tmp / "loose", FIXED)
     assert job.config.solver.rtol == 1e-4
     # the reference with the consistent tangent: the shipped band converges only linearly
     # near the solution, too slowly for 1e-10 in 30 iterations (docs/forming.md)
-    _, tight = run("hemisphere.toml", shared_tmp / "tight",
-                   fixed + ["solver.rtol=1e-10", "solver.neutral_loading_band=0"])
+    tight, tight_folder = converged
     for row in tight.rows[2:]:    # vertical equilibrium after the damped first step
         assert abs(row["die_force"] - row["punch_force"] - row["holder_force"]) < (
             1e-6 * row["die_force"]), row["step"]
-    assert_same_steps(loose, tight, (shared_tmp / "loose", shared_tmp / "tight"),
+    assert_same_steps(loose, tight, (shared_tmp / "loose", tight_folder),
                       ("punch_force", "holder_force"), 1e-4, job.config.process.holder_force)
     end = tight.rows[-1]["punch_force"]
     assert end > 1.0
@@ -243,7 +261,8 @@ def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp):
     assert iterations[0] < iterations[1]
 
 
-def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_tmp):
+@pytest.mark.two_ranks
+def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_tmp, converged):
     """The hemisphere configs stiffen Newton's shear tangent (towards the elastic one) at law
     points loaded only just past their elastic range (solver.neutral_loading_band,
     drape.fe.membrane.neutral_loading_tangent). Only the Jacobian changes, so on the same load
@@ -255,8 +274,7 @@ def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_
     # near the solution the stiffened tangent converges only linearly: to 1e-10 the band's run
     # needs more than the configs' 30 iterations in some steps (at the shipped 1e-4 it needs
     # fewer, docs/forming.md)
-    fixed = ["steps.initial=0.1", "steps.maximum=0.1", "output.xdmf=false", "solver.rtol=1e-10",
-             "solver.max_iterations=300"]
+    fixed = FIXED + ["solver.rtol=1e-10", "solver.max_iterations=300"]
     stiffened = {}
 
     def look(row, p):    # the last Jacobian's tangent against the law's consistent one
@@ -272,9 +290,8 @@ def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_
     from mpi4py import MPI
     job, band = run("hemisphere.toml", shared_tmp / "band", fixed, on_step=look)
     assert job.config.solver.neutral_loading_band == 1e-4
-    _, plain = run("hemisphere.toml", shared_tmp / "plain",
-                   fixed + ["solver.neutral_loading_band=0"])
-    assert_same_steps(band, plain, (shared_tmp / "band", shared_tmp / "plain"),
+    plain, plain_folder = converged          # the same steps, band 0
+    assert_same_steps(band, plain, (shared_tmp / "band", plain_folder),
                       ("punch_force", "holder_force", "die_force"), 1e-6,
                       job.config.process.holder_force)
     assert MPI.COMM_WORLD.allreduce(stiffened["points"]) > 0
@@ -284,6 +301,7 @@ def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_
           f"{sum(r['newton_iterations'] for r in plain.rows)} without")
 
 
+@pytest.mark.two_ranks
 def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
     """Mirror in the diagonal (x <-> y swaps warp and weft: gamma unchanged) to Newton's
     tolerance; mirror in a yarn axis (x -> -x reverses the warp: gamma -> -gamma) only as far
@@ -309,6 +327,7 @@ def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
     assert abs(abs(xy[i, 0]) - abs(xy[i, 1])) < 3.0     # on a diagonal, within an element
 
 
+@pytest.mark.two_ranks
 def test_hemisphere_45_on_a_disc_is_the_0_90_field_turned(tmp_path):
     """On a disc blank (an outline with no direction, unlike the square) the tools are
     axisymmetric and the yarn-aligned clipped lattice turns with the yarns, so the +-45 problem is
@@ -332,6 +351,7 @@ def test_hemisphere_45_on_a_disc_is_the_0_90_field_turned(tmp_path):
     assert np.abs(g45 - g0[j]).max() < 1e-6 * top
 
 
+@pytest.mark.two_ranks
 def test_hemisphere_45_square_has_the_0_90_symmetry_turned(tmp_path):
     """The shipped +-45 job (the same square blank, yarns along its diagonals) is not the 0/90
     one turned (the outline differs relative to the yarns: its punch force at 5 mm is 3.5 N
@@ -595,9 +615,9 @@ def test_a_resumed_forming_run_equals_the_uninterrupted_one(tmp_path, inertia):
 
 
 @pytest.mark.slow
-@pytest.mark.serial   # minutes each; 1 rank = 2 ranks on them is test_fe_cli.py's
+@pytest.mark.two_ranks   # minutes each, run once, on 2 ranks; 1 rank = 2 ranks is test_fe_cli.py's
 @pytest.mark.parametrize("config", ["double_dome.toml", "double_dome_45.toml"])
-def test_double_dome_configs_press_to_full_stroke(tmp_path, config):
+def test_double_dome_configs_press_to_full_stroke(shared_tmp, comm, config):
     """The shipped double-dome jobs as they are (the tools' full 58 mm, with the blank's
     inertia, docs/forming.md "Inertia"): they reach the full stroke; the penetration stays
     below 1 % of h, as on the hemisphere (measured 0 with the configs' penalty; where punch and
@@ -618,7 +638,11 @@ def test_double_dome_configs_press_to_full_stroke(tmp_path, config):
     from drape.forming.kinematic import compare_peaks, drape_fishnet
     from drape.run import run_job
     job = load_job(CONFIGS / config)
-    run_job(job, output=str(tmp_path))
+    run_job(job, comm, output=str(shared_tmp))
+    comm.barrier()
+    if comm.rank != 0:         # the rest reads the partition-independent files
+        return
+    tmp_path = shared_tmp
     report = json.loads((tmp_path / "summary.json").read_text())
     assert job.config.process.stroke is None
     assert report["stroke_mm"] == pytest.approx(full_stroke(job.config)) == pytest.approx(58.0)

@@ -6,6 +6,8 @@ the holder warning, and the meshed tools' candidate lists against the plain sear
 The forming comparisons are slow: the hemisphere (the punch 5 mm down on the coarsest mesh
 its die fillet allows) about a minute per run on one rank of the project's machine, the
 double dome (3 mm, its shipped 7.5 mm mesh) about 45 s built-in and 90 s with STEP tools.
+They are marked ``two_ranks`` (tests/conftest.py): the suite runs them once, under
+`mpirun -n 2`; the built-in hemisphere run is tests/test_forming.py's (tests/conftest.py).
 """
 
 import json
@@ -15,10 +17,10 @@ import numpy as np
 import pytest
 
 from cad_helpers import step_job, write_hemisphere_step
-from conftest import CONFIGS
+from conftest import CONFIGS, HEMISPHERE_SHORT
 from tool_helpers import brute_force, wavy_sheet
 
-SHORT = ["process.stroke=5", "steps.initial=0.05", "steps.maximum=0.2"]
+SHORT = HEMISPHERE_SHORT
 
 
 @pytest.fixture(scope="module")
@@ -121,6 +123,7 @@ def test_a_holder_force_more_than_five_percent_off_is_a_warning_with_the_step():
 
 # --- candidate lists ------------------------------------------------------------------------
 
+@pytest.mark.serial   # no MPI in it: under mpirun each rank would do the same
 @pytest.mark.parametrize("cutoff", [None, 3.0])
 def test_candidate_lists_give_the_exact_closest_points_as_points_move(cutoff):
     """MeshedSurface with candidate lists (margin 0.5 mm) on an irregular sheet, 2000 points
@@ -164,14 +167,18 @@ def run(path, folder, overrides=(), short=SHORT):
 
 
 @pytest.fixture(scope="module")
-def both(cad, tmp_path_factory):
+def both(cad, hemisphere_5mm, tmp_path_factory):
+    """The built-in tools' run (the session's, tests/conftest.py) and the STEP tools' one, each
+    (RunSummary, summary.json, the lines it logged)."""
     from mpi4py import MPI
     folder = tmp_path_factory.mktemp("runs") if MPI.COMM_WORLD.rank == 0 else None
     folder = MPI.COMM_WORLD.bcast(folder, root=0)
-    return {"builtin": run(CONFIGS / "hemisphere.toml", folder / "builtin"),
+    _, summary, builtin, said = hemisphere_5mm
+    return {"builtin": (summary, json.loads((builtin / "summary.json").read_text()), said),
             "step": run(cad / "hemisphere_step.toml", folder / "step")}
 
 
+@pytest.mark.two_ranks
 def test_step_tools_give_the_built_in_tools_answer(both):
     """The default hemisphere job, 5 mm, with its built-in tools and with the same tools from
     STEP files (meshed by gmsh, chord error <= 0.05 mm against the smoothing's 0.195 mm):
@@ -198,6 +205,7 @@ def test_step_tools_give_the_built_in_tools_answer(both):
     assert any("holder force 200 N (force-controlled)" in line for line in said)
 
 
+@pytest.mark.two_ranks
 def test_a_position_controlled_step_holder_reports_the_force_it_measured(cad, shared_tmp):
     """With control = "position" the holder stays at z = 0 where the die's top is: the blank
     between them is squeezed by the smoothed penalty of both (thousands of N, not the config's
@@ -216,6 +224,7 @@ def test_a_position_controlled_step_holder_reports_the_force_it_measured(cad, sh
     assert any(f"{measured:.5g}" in line for line in said)
 
 
+@pytest.mark.two_ranks
 def test_step_tools_give_the_built_in_double_domes_answer(shared_tmp, comm):
     """The shipped 0/90 double-dome job (h = 7.5 mm, with the blank's inertia), 3 mm in steps
     of 0.3-0.6 mm, with its exact tools and with the same tools written as STEP by gmsh (die
