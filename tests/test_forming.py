@@ -700,9 +700,18 @@ def test_inertia_of_a_motion_quadratic_in_time_is_exact(steps):
     dtau^2. The first step has none."""
     from types import SimpleNamespace
 
+    from drape.fe.membrane import MembraneProblem
     from drape.forming.press import Forming
     from drape.job import ProcessConfig
     stroke, process = 40.0, ProcessConfig(areal_density=1.3, punch_speed=2.0, punch_ramp=8.0)
+
+    class Problem(SimpleNamespace):
+        """The problem's state that predict reads, with the real methods it sets it through."""
+        set_initial_guess = MembraneProblem.set_initial_guess
+        set_damping = MembraneProblem.set_damping
+        set_inertia = MembraneProblem.set_inertia
+        inertial = MembraneProblem.inertial
+
     rng = np.random.default_rng(5)
     a, b, c = rng.standard_normal((3, 12)) * [[1e6], [1e3], [1.0]]
     t0, t1, t = steps
@@ -716,11 +725,11 @@ def test_inertia_of_a_motion_quadratic_in_time_is_exact(steps):
     def array(values):
         return SimpleNamespace(x=SimpleNamespace(array=np.array(values, dtype=float)))
 
-    problem = SimpleNamespace(u=array(np.zeros(12)), u_committed=array(u(t1)),
-                              u_previous=array(u(t0)), u_anchor=array(np.zeros(12)),
-                              t_committed=t1, t_previous=t0, damping=0.0,
-                              damping_constant=SimpleNamespace(value=None),
-                              inertia_constant=SimpleNamespace(value=None))
+    problem = Problem(u=array(np.zeros(12)), u_committed=array(u(t1)),
+                      u_previous=array(u(t0)), u_anchor=array(np.zeros(12)),
+                      t_committed=t1, t_previous=t0, damping=0.0,
+                      damping_constant=SimpleNamespace(value=None),
+                      inertia_constant=SimpleNamespace(value=None))
     forming = SimpleNamespace(problem=problem, stroke=stroke, process=process)
     Forming.predict(forming, t)
     k = problem.inertia_constant.value
