@@ -7,10 +7,11 @@ the writers and plots run on rank 0 only.
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
+
+from drape.io.writer import write_table
 
 FORCE_STROKE_FILE = "force_stroke.csv"
 FORCE_STROKE_COLUMNS = ("step", "t", "stroke", "punch_force", "die_force", "holder_force",
@@ -154,12 +155,7 @@ def edge_draw_in(X, u, targets: dict, comm, tie: float = 1e-6) -> dict[str, floa
 
 def write_force_stroke(folder: Path, rows: list) -> None:
     columns = [c for c in FORCE_STROKE_COLUMNS if c in rows[-1]]
-    with (Path(folder) / FORCE_STROKE_FILE).open("w", newline="") as stream:
-        writer = csv.writer(stream)
-        writer.writerow(columns)
-        for row in rows:
-            writer.writerow([row[c] if isinstance(row[c], int) else repr(float(row[c]))
-                             for c in columns])
+    write_table(Path(folder) / FORCE_STROKE_FILE, columns, rows)
 
 
 def _pyplot():

@@ -226,6 +226,17 @@ def _abandon(stream) -> None:
     ctypes.pythonapi.Py_IncRef(ctypes.py_object(stream))
 
 
+def write_table(path: Path, columns, rows: list) -> None:
+    """A CSV file of the given columns of ``rows`` (dicts): integers as they are, every other
+    value as a float to full precision (repr), so a table reads back to the bit."""
+    with Path(path).open("w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow([row[c] if isinstance(row[c], int) else repr(float(row[c]))
+                             for c in columns])
+
+
 def _text(value) -> str:
     if isinstance(value, (float, np.floating)):
         return repr(float(value))

@@ -15,13 +15,13 @@ bias_extension.png (columns also in steps.csv).
 
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
 
 import numpy as np
 
 from drape.fe.job_part import JobPart
+from drape.io.writer import write_table
 
 FILE_STEM = "bias_extension"
 COLUMNS = ("step", "t", "displacement_mm", "time_s", "force_N", "central_shear_deg",
@@ -84,12 +84,7 @@ class BiasExtensionReport(JobPart):
 def write(folder: Path, rows: list[dict], title: str = "") -> None:
     """bias_extension.csv and bias_extension.png from the steps' rows (rank 0 only)."""
     folder = Path(folder)
-    with (folder / f"{FILE_STEM}.csv").open("w", newline="") as stream:
-        writer = csv.writer(stream)
-        writer.writerow(COLUMNS)
-        for row in rows:
-            writer.writerow([row[n] if isinstance(row[n], int) else repr(float(row[n]))
-                             for n in COLUMNS])
+    write_table(folder / f"{FILE_STEM}.csv", COLUMNS, rows)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

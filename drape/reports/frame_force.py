@@ -17,7 +17,6 @@ dd/d gamma = a sin(phi).
 
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import numpy as np
 
 from drape import picture_frame
 from drape.fe.job_part import JobPart
+from drape.io.writer import write_table
 
 FILE_STEM = "frame_force"
 #: the report's columns in steps.csv
@@ -73,13 +73,7 @@ def from_conjugate_force(side: float, angle_deg: float, q_per_deg: float) -> flo
 def write(folder: Path, side: float, rows: list[dict]) -> None:
     """frame_force.csv and frame_force.png from the run's rows (rank 0 only)."""
     folder = Path(folder)
-    names = ["step", "t", "angle_deg", "frame_force", "frame_force_from_tau", "tau_mean"]
-    with (folder / f"{FILE_STEM}.csv").open("w", newline="") as stream:
-        writer = csv.writer(stream)
-        writer.writerow(names)
-        for row in rows:
-            writer.writerow([row[n] if isinstance(row[n], int) else repr(float(row[n]))
-                             for n in names])
+    write_table(folder / f"{FILE_STEM}.csv", ("step", "t", "angle_deg", *COLUMNS), rows)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
