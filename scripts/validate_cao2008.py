@@ -200,7 +200,7 @@ def plot(out: Path, results, labs, angle_measured, fig39, material: Path, fabric
     import matplotlib.pyplot as plt
 
     from drape.law.parameters import load_material
-    from drape.measured import monotonic_tau
+    from drape.calibration import monotonic_tau
 
     specs = list(results)
     # force against displacement, one panel per specimen
