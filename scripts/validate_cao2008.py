@@ -138,15 +138,19 @@ def main(argv=None) -> int:
     print(f"validate_cao2008: wrote {out}/force_displacement.png, central_angle.png, "
           f"normalised_force.png, deviations.csv, deviations.md")
     if args.docs:
-        import shutil
-        docs = (REPO / args.docs).resolve()
-        docs.mkdir(parents=True, exist_ok=True)
-        for name in ("force_displacement.png", "central_angle.png", "normalised_force.png",
-                     "deviations.md"):
-            shutil.copyfile(out / name, docs / name)
-        shutil.copyfile(out / "calibration" / "calibration.png", docs / "calibration.png")
-        print(f"validate_cao2008: copied the figures and the table to {docs}")
+        copy_to_docs(out, (REPO / args.docs).resolve())
     return 0
+
+
+def copy_to_docs(out: Path, docs: Path) -> None:
+    """The figures and deviations.md of docs/validation.md, from ``out`` into ``docs``."""
+    import shutil
+    docs.mkdir(parents=True, exist_ok=True)
+    for name in ("force_displacement.png", "central_angle.png", "normalised_force.png",
+                 "deviations.md"):
+        shutil.copyfile(out / name, docs / name)
+    shutil.copyfile(out / "calibration" / "calibration.png", docs / "calibration.png")
+    print(f"validate_cao2008: copied the figures and the table to {docs}")
 
 
 def table(results, labs) -> list[dict]:
