@@ -49,6 +49,7 @@ HELP = "fit the law to a measured picture-frame curve (CSV) -> material TOML + P
 
 
 def add_arguments(parser) -> None:
+    """The options of `drape calibrate`."""
     parser.add_argument("data", metavar="CSV",
                         help="measured curve: columns gamma_t_deg and tau (N/mm), or "
                              "gamma_t_deg and force (N) with --frame-side; one increment per row; "

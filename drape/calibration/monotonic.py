@@ -23,6 +23,9 @@ STAGE2_ITERATIONS = 3
 
 @dataclasses.dataclass
 class MonotonicFit:
+    """Both models fitted to monotonic series, their tau at the resampled points (N/mm) and
+    RMS errors, and the factor applied to the base's h_k."""
+
     one_surface: object          # MaterialParameters: the loading edge alone
     nested: object               # MaterialParameters: with the inner surfaces of the base
     names: np.ndarray            # the resampled points the fit used
