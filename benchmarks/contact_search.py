@@ -70,18 +70,34 @@ def main(argv=None):
     rng = np.random.default_rng(1)
     print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"load average {os.getloadavg()[0]:.1f}; N = {n}")
+    dd_cfg, dd = built("double dome", DoubleDomeTools())
+    hemi_cfg, hemi = built("hemisphere", HemisphereTools())
+    time_double_dome(dd, dd_cfg, n, rng, args)
+    time_hemisphere(hemi, hemi_cfg, n, rng, args)
+    time_contact_law(n, rng, args)
 
-    start = time.perf_counter()
-    dd_cfg = DoubleDomeTools()
-    dd = build_tools(dd_cfg)
-    print(f"double dome built and meshed in {time.perf_counter() - start:.1f} s: " +
-          ", ".join(f"{k} {len(v.triangles)} triangles" for k, v in dd.items()))
-    start = time.perf_counter()
-    hemi_cfg = HemisphereTools()
-    hemi = build_tools(hemi_cfg)
-    print(f"hemisphere built and meshed in {time.perf_counter() - start:.1f} s: " +
-          ", ".join(f"{k} {len(v.triangles)} triangles" for k, v in hemi.items()))
 
+def built(name, config):
+    """The tools of ``config`` meshed (their default meshes), with the time it took."""
+    start = time.perf_counter()
+    tools = build_tools(config)
+    print(f"{name} built and meshed in {time.perf_counter() - start:.1f} s: " +
+          ", ".join(f"{k} {len(v.triangles)} triangles" for k, v in tools.items()))
+    return config, tools
+
+
+def flat_blank(dd_cfg, count):
+    """About ``count`` points on a grid over the die's footprint, 1 mm under the plane z = 0:
+    the punch's tips are 1 mm away."""
+    side = int(np.sqrt(count * dd_cfg.die_width / dd_cfg.die_length))
+    xs = np.linspace(-dd_cfg.die_length / 2, dd_cfg.die_length / 2, max(2, count // side))
+    ys = np.linspace(-dd_cfg.die_width / 2, dd_cfg.die_width / 2, side)
+    return np.stack(np.meshgrid(xs, ys, [-1.0], indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def time_double_dome(dd, dd_cfg, n, rng, args):
+    """The meshed punch and die on points near their surfaces, and the punch on a flat blank
+    (with a 5 mm cutoff, and exact on --far-points points)."""
     print("double dome, meshed:")
     for name in ("punch", "die"):
         tool = MeshedSurface(dd[name], workers=args.workers)
@@ -90,21 +106,17 @@ def main(argv=None):
             pts = near_points(dd[name], n, spread, rng)
             timed(f"{name}, {label} (+-{spread} mm)", lambda: tool.query(pts), n, args.repeats,
                   tool)
-    def flat_blank(count):
-        side = int(np.sqrt(count * dd_cfg.die_width / dd_cfg.die_length))
-        xs = np.linspace(-dd_cfg.die_length / 2, dd_cfg.die_length / 2, max(2, count // side))
-        ys = np.linspace(-dd_cfg.die_width / 2, dd_cfg.die_width / 2, side)
-        grid = np.stack(np.meshgrid(xs, ys, [-1.0], indexing="ij"), axis=-1).reshape(-1, 3)
-        return grid       # 1 mm under the plane z = 0: the punch's tips are 1 mm away
-
     punch = MeshedSurface(dd["punch"], workers=args.workers)
-    blank = flat_blank(n)
+    blank = flat_blank(dd_cfg, n)
     timed(f"punch, flat blank ({len(blank)} pts), cutoff 5 mm",
           lambda: punch.query(blank, cutoff=5.0), len(blank), args.repeats, punch)
-    few = flat_blank(int(args.far_points))
+    few = flat_blank(dd_cfg, int(args.far_points))
     timed(f"punch, flat blank ({len(few)} pts), exact", lambda: punch.query(few), len(few),
           args.repeats, punch)
 
+
+def time_hemisphere(hemi, hemi_cfg, n, rng, args):
+    """The punch and the die, analytic and meshed, on points within +-3 mm of them."""
     print("hemisphere (+-3 mm of the surface):")
     exact = analytic_tools(hemi_cfg)
     for name in ("punch", "die"):
@@ -113,6 +125,9 @@ def main(argv=None):
         meshed = MeshedSurface(hemi[name], workers=args.workers)
         timed(f"{name}, meshed", lambda: meshed.query(pts), n, args.repeats, meshed)
 
+
+def time_contact_law(n, rng, args):
+    """The penalty-and-friction traction and its tangent on n points in contact."""
     print("contact law:")
     normal = rng.normal(size=(n, 3))
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)

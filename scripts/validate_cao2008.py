@@ -138,15 +138,19 @@ def main(argv=None) -> int:
     print(f"validate_cao2008: wrote {out}/force_displacement.png, central_angle.png, "
           f"normalised_force.png, deviations.csv, deviations.md")
     if args.docs:
-        import shutil
-        docs = (REPO / args.docs).resolve()
-        docs.mkdir(parents=True, exist_ok=True)
-        for name in ("force_displacement.png", "central_angle.png", "normalised_force.png",
-                     "deviations.md"):
-            shutil.copyfile(out / name, docs / name)
-        shutil.copyfile(out / "calibration" / "calibration.png", docs / "calibration.png")
-        print(f"validate_cao2008: copied the figures and the table to {docs}")
+        copy_to_docs(out, (REPO / args.docs).resolve())
     return 0
+
+
+def copy_to_docs(out: Path, docs: Path) -> None:
+    """The figures and deviations.md of docs/validation.md, from ``out`` into ``docs``."""
+    import shutil
+    docs.mkdir(parents=True, exist_ok=True)
+    for name in ("force_displacement.png", "central_angle.png", "normalised_force.png",
+                 "deviations.md"):
+        shutil.copyfile(out / name, docs / name)
+    shutil.copyfile(out / "calibration" / "calibration.png", docs / "calibration.png")
+    print(f"validate_cao2008: copied the figures and the table to {docs}")
 
 
 def table(results, labs) -> list[dict]:
@@ -195,15 +199,20 @@ def write_table(out: Path, rows, fabric: str) -> None:
 
 
 def plot(out: Path, results, labs, angle_measured, fig39, material: Path, fabric: str) -> None:
+    """force_displacement.png, central_angle.png and normalised_force.png in ``out``."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from drape.law.parameters import load_material
-    from drape.measured import monotonic_tau
+    plot_force_displacement(plt, out / "force_displacement.png", results, labs, fabric)
+    plot_central_angle(plt, out / "central_angle.png", results, angle_measured)
+    plot_normalised_force(plt, out / "normalised_force.png", results, labs, fig39, material)
 
+
+def plot_force_displacement(plt, path: Path, results, labs, fabric: str) -> None:
+    """The FE's force against displacement and the measured ones (Fig. 38), one panel per
+    specimen, the kinematic 10/20/30/40 deg marked."""
     specs = list(results)
-    # force against displacement, one panel per specimen
     fig, axes = plt.subplots(1, len(specs), figsize=(4.2 * len(specs), 4.0), dpi=110,
                              squeeze=False)
     for ax, (W, H) in zip(axes[0], specs):
@@ -226,10 +235,13 @@ def plot(out: Path, results, labs, angle_measured, fig39, material: Path, fabric
     fig.suptitle(f"Bias extension, {fabric}: drape calibrated on the picture frame against "
                  "Cao et al. 2008, Fig. 38", fontsize=10)
     fig.tight_layout()
-    fig.savefig(out / "force_displacement.png")
+    fig.savefig(path)
     plt.close(fig)
 
-    # central angle against displacement
+
+def plot_central_angle(plt, path: Path, results, angle_measured) -> None:
+    """The FE's central shear angle and the three-zone kinematics against displacement, and
+    the measured angles of Fig. 36."""
     fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=110)
     for (W, H), fe in results.items():
         line, = ax.plot(fe["displacement_mm"], fe["central_shear_deg"], lw=1.8,
@@ -247,10 +259,16 @@ def plot(out: Path, results, labs, angle_measured, fig39, material: Path, fabric
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    fig.savefig(out / "central_angle.png")
+    fig.savefig(path)
     plt.close(fig)
 
-    # normalised shear force against angle: the same formula on the FE and measured forces
+
+def plot_normalised_force(plt, path: Path, results, labs, fig39, material: Path) -> None:
+    """Cao et al.'s normalised shear force of the bias extension, computed alike from the FE's
+    and the measured forces, against Fig. 39 and the calibrated tau/2."""
+    from drape.calibration import monotonic_tau
+    from drape.law.parameters import load_material
+
     params = load_material(material)
     gammas = np.arange(1.0, 45.01, 1.0)
     fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=110)
@@ -279,7 +297,7 @@ def plot(out: Path, results, labs, angle_measured, fig39, material: Path, fabric
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6, loc="upper left", ncol=2)
     fig.tight_layout()
-    fig.savefig(out / "normalised_force.png")
+    fig.savefig(path)
     plt.close(fig)
 
 

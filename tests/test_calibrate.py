@@ -20,7 +20,7 @@ import math
 import numpy as np
 import pytest
 
-from drape import calibrate as cal
+from drape import calibration as cal
 from drape.cli import main
 from drape.law.parameters import MaterialParameters, PAPER_A, PAPER_Q, load_material
 from drape.picture_frame import cyclic_history, drive, frame_force, frame_tau

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from conftest import CONFIGS, REPO
-from drape import measured
+from drape import calibration as measured
 from drape.law.parameters import MaterialParameters, load_material, material_toml
 from drape.picture_frame import frame_tau
 

@@ -79,6 +79,34 @@ def check_forming(config) -> None:
     """Cross-checks of a forming job (InputError naming the key): stroke within the tools, blank
     on the die and over its opening, mesh fine enough for the tools' fillets."""
     tools, dims = tool_set(config)
+    _check_stroke(config, tools, dims)
+    half_extents = blank_half_extents(config.blank)
+    if config.blank.shape == "polygon":
+        _check_polygon_blank(config, tools, dims, half_extents)
+    else:
+        _check_blank(config, tools, dims, half_extents)
+    _check_mesh(config)
+
+
+def _hemisphere_opening(dims) -> float:
+    """The radius (mm) the blank must cover all round: the die's opening and its fillet."""
+    return dims.die_opening_radius + dims.die_fillet_radius
+
+
+def _double_dome_cavity(dims) -> tuple[float, float]:
+    """The half length and half width (mm) of the die's cavity, entry fillets included."""
+    return (dims.dome_offset + dims.punch_width / 2 + dims.clearance + dims.die_entry_radius,
+            dims.punch_width / 2 + dims.clearance + dims.die_entry_radius)
+
+
+def _blank_key(blank) -> str:
+    """The key a blank's size error names."""
+    return {"disc": "blank.radius", "polygon": "blank.points"}.get(blank.shape, "blank.length")
+
+
+def _check_stroke(config, tools, dims) -> None:
+    """A stroke for STEP tools, within the built-in tools' full stroke; a die under a
+    force-controlled STEP holder."""
     process = config.process
     limit = full_stroke(config)
     if tools.kind == "step" and process.stroke is None:
@@ -94,52 +122,60 @@ def check_forming(config) -> None:
                          value=process.stroke,
                          expected=f"<= {limit:g} mm, the full stroke of these {tools.kind} tools "
                                   "(the punch would hit the die)")
-    hx, hy = blank_half_extents(config.blank)
-    reach = math.hypot(hx, hy) if config.blank.shape == "rectangle" else hx
-    key = {"disc": "blank.radius", "polygon": "blank.points"}.get(config.blank.shape,
-                                                                  "blank.length")
-    if config.blank.shape == "polygon":
-        inner, reach = _polygon_radii(config.blank)
-        if tools.kind == "hemisphere":
-            opening = dims.die_opening_radius + dims.die_fillet_radius
-            if inner <= opening:
-                raise InputError("the blank does not cover the die opening", key=key,
-                                 value=f"its edge {inner:.4g} mm from the tools' axis",
-                                 expected=f"a polygon around x = y = 0 reaching beyond r = "
-                                          f"{opening:g} mm all round")
-            if reach > dims.die_outer_radius:
-                raise InputError("the blank reaches beyond the die", key=key,
-                                 value=f"a vertex at r = {reach:.4g} mm",
-                                 expected=f"vertices within r = {dims.die_outer_radius:g} mm")
-        elif tools.kind == "double_dome":
-            from drape.geometry.blank import _inside
-            from drape.job import blank_outline
-            outline = blank_outline(config.blank)
-            ox = dims.dome_offset + dims.punch_width / 2 + dims.clearance + dims.die_entry_radius
-            oy = dims.punch_width / 2 + dims.clearance + dims.die_entry_radius
-            corners = np.array([[ox, oy], [-ox, oy], [-ox, -oy], [ox, -oy]])
-            if not _inside(outline, corners).all() or min(hx, hy) <= min(ox, oy):
-                raise InputError("the blank does not cover the die cavity", key=key,
-                                 expected=f"a polygon around the cavity |x| < {ox:g}, "
-                                          f"|y| < {oy:g} mm")
-            if hx > dims.die_length / 2 or hy > dims.die_width / 2:
-                raise InputError("the blank reaches beyond the die", key=key,
-                                 expected=f"|x| <= {dims.die_length / 2:g} and |y| <= "
-                                          f"{dims.die_width / 2:g} mm")
-    elif tools.kind == "hemisphere":
-        opening = dims.die_opening_radius + dims.die_fillet_radius
+
+
+def _check_polygon_blank(config, tools, dims, half_extents) -> None:
+    """A polygon blank covers the die's opening (cavity) and stays on the die."""
+    key = _blank_key(config.blank)
+    inner, reach = _polygon_radii(config.blank)
+    if tools.kind == "hemisphere":
+        opening = _hemisphere_opening(dims)
+        if inner <= opening:
+            raise InputError("the blank does not cover the die opening", key=key,
+                             value=f"its edge {inner:.4g} mm from the tools' axis",
+                             expected=f"a polygon around x = y = 0 reaching beyond r = "
+                                      f"{opening:g} mm all round")
+        if reach > dims.die_outer_radius:
+            raise InputError("the blank reaches beyond the die", key=key,
+                             value=f"a vertex at r = {reach:.4g} mm",
+                             expected=f"vertices within r = {dims.die_outer_radius:g} mm")
+    elif tools.kind == "double_dome":
+        from drape.geometry.blank import _inside
+        from drape.job import blank_outline
+        hx, hy = half_extents
+        outline = blank_outline(config.blank)
+        ox, oy = _double_dome_cavity(dims)
+        corners = np.array([[ox, oy], [-ox, oy], [-ox, -oy], [ox, -oy]])
+        if not _inside(outline, corners).all() or min(hx, hy) <= min(ox, oy):
+            raise InputError("the blank does not cover the die cavity", key=key,
+                             expected=f"a polygon around the cavity |x| < {ox:g}, "
+                                      f"|y| < {oy:g} mm")
+        if hx > dims.die_length / 2 or hy > dims.die_width / 2:
+            raise InputError("the blank reaches beyond the die", key=key,
+                             expected=f"|x| <= {dims.die_length / 2:g} and |y| <= "
+                                      f"{dims.die_width / 2:g} mm")
+
+
+def _check_blank(config, tools, dims, half_extents) -> None:
+    """A rectangle or disc blank covers the die's opening (cavity) and stays on the die,
+    corners included."""
+    blank = config.blank
+    key = _blank_key(blank)
+    hx, hy = half_extents
+    if tools.kind == "hemisphere":
+        reach = math.hypot(hx, hy) if blank.shape == "rectangle" else hx
+        opening = _hemisphere_opening(dims)
         if min(hx, hy) <= opening:
             raise InputError("the blank does not cover the die opening", key=key,
-                             value=2 * min(hx, hy) if config.blank.shape == "rectangle" else hx,
+                             value=2 * min(hx, hy) if blank.shape == "rectangle" else hx,
                              expected=f"a blank reaching beyond r = {opening:g} mm all round")
         if reach > dims.die_outer_radius:
             raise InputError("the blank reaches beyond the die", key=key,
-                             value=getattr(config.blank, key.split(".")[1]),
+                             value=getattr(blank, key.split(".")[1]),
                              expected=f"a blank within r = {dims.die_outer_radius:g} mm, corners "
                                       f"included (they are at r = {reach:.4g} mm)")
     elif tools.kind == "double_dome":
-        opening_x = dims.dome_offset + dims.punch_width / 2 + dims.clearance + dims.die_entry_radius
-        opening_y = dims.punch_width / 2 + dims.clearance + dims.die_entry_radius
+        opening_x, opening_y = _double_dome_cavity(dims)
         if hx <= opening_x or hy <= opening_y:
             raise InputError("the blank does not cover the die cavity", key=key,
                              value=(2 * hx, 2 * hy),
@@ -149,6 +185,10 @@ def check_forming(config) -> None:
             raise InputError("the blank reaches beyond the die", key=key, value=(2 * hx, 2 * hy),
                              expected=f"length <= {dims.die_length:g} and width <= "
                                       f"{dims.die_width:g} mm")
+
+
+def _check_mesh(config) -> None:
+    """Two elements over the quarter arc of the smallest fillet the fabric wraps."""
     radius = smallest_wrapped_radius(config)
     if radius is not None:
         largest = math.pi / 4 * radius
