@@ -12,7 +12,7 @@ import pytest
 from drape.job import BlankConfig, MeshConfig, load_job
 from drape.law.nested_surface import LawState, NestedSurfaceLaw
 from drape.law.parameters import MaterialParameters
-from drape.fe.membrane import PointContribution
+from drape.fe.contributions import PointContribution
 from fe_helpers import central_difference, jacobian_action, residual
 
 
@@ -299,7 +299,7 @@ def test_newtons_shear_tangent_is_stiffened_only_near_neutral_loading():
     nothing. The points come from the law itself: sheared to 3 deg (plastic), committed, then
     loaded on by 1e-7 and by 1e-2 in C12, and unloaded by 1e-5 (within the innermost
     surface: elastic)."""
-    from drape.fe.membrane import neutral_loading_tangent
+    from drape.fe.newton_tangent import neutral_loading_tangent
     law = NestedSurfaceLaw(MaterialParameters())
     one = np.ones(3)
     state = LawState.virgin(3, law.n)

@@ -140,8 +140,8 @@ def test_the_forming_jacobian_is_the_derivative_of_the_residual(shared_tmp):
         for without_tools in (False, True):
             residual(p, x)               # the law's and the tools' state at x
             if without_tools:
-                for _, _, stiffness, _, _ in p._contribution_data:
-                    stiffness.x.array[:] = 0.0
+                for term in p.point_terms.entries:
+                    term.stiffness.x.array[:] = 0.0
             jacobians.append(p.create_matrix())
             p.jacobian(None, x, jacobians[-1], jacobians[-1])
         directions = {"increment": increment}
@@ -265,7 +265,7 @@ def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp, con
 def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_tmp, converged):
     """The hemisphere configs stiffen Newton's shear tangent (towards the elastic one) at law
     points loaded only just past their elastic range (solver.neutral_loading_band,
-    drape.fe.membrane.neutral_loading_tangent). Only the Jacobian changes, so on the same load
+    drape.fe.newton_tangent.neutral_loading_tangent). Only the Jacobian changes, so on the same load
     steps (5 mm in fixed 0.5 mm steps), both converged to 1e-10, the run with the band and the
     one with the consistent tangent
     everywhere must reach the same state: every step's forces within 1e-6 of the holder force

@@ -12,18 +12,11 @@ thickness-integrated PK2 stress (N/mm)
     S = S11 G1 G1 + S22 G2 G2 + tau/2 (G1 G2 + G2 G1),   S11 = mu K1 E11, S22 = mu K2 E22.
 
 The residual is the internal virtual work minus external point forces plus the regularisation
-and, when the fabric's bending rigidity B (N mm) is set, the variation of a bending energy:
+and, when the fabric's bending rigidity B (N mm) is set, the variation of the bending hinges'
+energy W_b (:mod:`drape.fe.bending`):
 
     R(u; v) = int S : sym(F^T grad v) dA + int k (u_z - u_z,last) v_z dA - sum_c int f_c . v dA
-              + d/du W_b(u; v),
-    W_b = sum over interior edges e of int_e B / (2 h) |n+ - n-|^2 ds,
-
-n the unit normal of the deformed surface (F e1 x F e2 normalised) on either side of the edge
-and h the element size there: each edge is a hinge whose energy B theta^2 L / (2 h) is the
-plate energy B kappa^2 / 2 of a curvature kappa = theta / h spread over the strip of width h
-(a discrete-shell bending model). It vanishes on a flat or rigidly moved blank, so it changes
-nothing in the flat jobs; in forming it gives the membrane the bending stiffness a real fabric
-has (docs/forming.md, "Bending").
+              + d/du W_b(u; v).
 
 S11 and S22 are written in UFL; tau and its consistent tangent d tau / d C12 come from the numpy
 law at the quadrature points. Every residual evaluation computes the yarn-frame C at the
@@ -41,8 +34,8 @@ too; :meth:`MembraneProblem.commit` writes the last trial state there after a co
 :meth:`MembraneProblem.restore` goes back to the committed displacement after a failed one.
 
 Quadrature: 2x2 Gauss points on quadrilaterals (degree 2), the centroid on triangles (degree 1,
-exact for linear triangles). The regularisation and point contributions use degree 2 on both
-(a one-point rule would leave the out-of-plane mass of linear triangles singular).
+exact for linear triangles). The regularisation and point contributions
+(:mod:`drape.fe.contributions`) use degree 2 on both.
 """
 
 from __future__ import annotations
@@ -51,42 +44,11 @@ import time
 
 import numpy as np
 
+from drape.fe.contributions import PointContribution, all_finite
+from drape.fe.newton_tangent import neutral_loading_tangent
+
 #: quadrature degree of the law's points, by cell type name
 LAW_DEGREE = {"quadrilateral": 2, "triangle": 1}
-#: quadrature degree of the regularisation and point contributions
-CONTRIBUTION_DEGREE = 2
-
-
-class PointContribution:
-    """Forces at quadrature points that the residual and the Jacobian include (e.g. contact).
-
-    Before every residual evaluation the problem calls :meth:`evaluate` with the current
-    positions x = X + u and displacements u at its quadrature points (P, 3); it returns the
-    force per unit reference area on the membrane f (P, 3), N/mm^2, and the stiffness
-    K = -df/du (P, 3, 3), N/mm^3. :meth:`setup` is called once with the reference points
-    (P, 2); :meth:`commit` after every converged step (friction history, say).
-    """
-
-    name = "contribution"
-
-    def setup(self, reference_points: np.ndarray) -> None:
-        self.reference_points = reference_points
-
-    def evaluate(self, positions: np.ndarray, displacements: np.ndarray):
-        raise NotImplementedError
-
-    def commit(self) -> None:
-        pass
-
-    def state(self) -> dict:
-        """The committed history (e.g. friction) as named numpy arrays, for a checkpoint;
-        none by default. Arrays of this rank's points (the checkpoint is per rank)."""
-        return {}
-
-    def load_state(self, state: dict) -> None:
-        """Take back what :meth:`state` returned (resume from a checkpoint)."""
-        if state:
-            raise NotImplementedError(f"{type(self).__name__} saved a state but cannot load it")
 
 
 class MembraneProblem:
@@ -99,13 +61,12 @@ class MembraneProblem:
                  neutral_loading_band: float = 0.0):
         """``neutral_loading_band`` (rad): :func:`neutral_loading_tangent`'s band for Newton's
         Jacobian; 0 keeps the law's consistent tangent everywhere."""
-        import basix
         import ufl
         from dolfinx import fem
 
         self.blank_mesh = blank_mesh
-        self.mesh = msh = blank_mesh.mesh
-        self.comm = msh.comm
+        self.mesh = blank_mesh.mesh
+        self.comm = self.mesh.comm
         self.law = law
         self.damping = float(damping)
         self.neutral_loading_band = float(neutral_loading_band)
@@ -114,17 +75,61 @@ class MembraneProblem:
                                       "residual_assembly",
                                       "jacobian_assembly"), 0.0)
         self.counts = dict.fromkeys(("residual", "jacobian", "law"), 0)
+        self.yarn_angle_deg = float(yarn_angle_deg)
+        self.bending_rigidity = float(bending_rigidity)
         jit = dict(jit_params or {})
 
+        areas_with_ghosts = self._quadrature(jit)
+        self._spaces_and_state()
+        u, v, du = self.u, ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
+        F, C11, C22, C12, internal, jacobian = self._membrane_forms(v, du)
+        residual, jacobian, regularisation_work = self._regularisation(internal, jacobian,
+                                                                       v, du, inertia)
+        bending_energy = None
+        if self.bending_rigidity > 0.0:
+            from drape.fe.bending import hinge_energy
+            bending_energy, self.cell_size = hinge_energy(self.mesh, F, areas_with_ghosts,
+                                                          self.bending_rigidity)
+            bending_residual = ufl.derivative(bending_energy, u, v)
+            residual += bending_residual
+            jacobian += ufl.derivative(bending_residual, u, du)
+        from drape.fe.contributions import PointTerms
+        self.point_terms = PointTerms(self.mesh, self.contributions, u, self.cells, jit)
+        self.extra_points, self.extra_weights = self.point_terms.points, self.point_terms.weights
+        residual, jacobian = self.point_terms.add_to(residual, jacobian, v, du)
+
+        self.residual_form = fem.form(residual, jit_params=jit)
+        self.jacobian_form = fem.form(jacobian, jit_params=jit)
+        self.internal_form = fem.form(internal, jit_params=jit)
+        self.regularisation_work_form = fem.form(regularisation_work, jit_params=jit)
+        self.bending_energy_form = (fem.form(bending_energy, jit_params=jit)
+                                    if bending_energy is not None else None)
+        self._point_expressions(F, C11, C22, C12, jit)
+
+        self.bcs = []
+        self.response = None
+        self._evaluated_at = None
+        #: where a NaN/Inf appeared since the last :meth:`clear_nonfinite` ("law", "residual",
+        #: a contribution's name), on this rank; the solver gathers it after each solve
+        self.nonfinite: set[str] = set()
+        self._finite = True
+
+    # --- building the problem ---------------------------------------------------------------
+    def _quadrature(self, jit: dict) -> np.ndarray:
+        """The law's quadrature rule, the local cells and their reference areas (mm^2);
+        returns the areas of the local and ghost cells (the bending hinges on the edges a rank
+        shares need the cell size on both sides)."""
+        import basix
+        import ufl
+        from dolfinx import fem
+        msh = self.mesh
         cell_name = msh.topology.cell_type.name
-        basix_cell = getattr(basix.CellType, cell_name)
         self.degree = LAW_DEGREE[cell_name]
-        self.points, self.weights = basix.make_quadrature(basix_cell, self.degree)
+        self.points, self.weights = basix.make_quadrature(getattr(basix.CellType, cell_name),
+                                                          self.degree)
         nq = self.nq = len(self.weights)
         self.n_cells = msh.topology.index_map(2).size_local
         self.cells = np.arange(self.n_cells, dtype=np.int32)
-        # reference area (mm^2) of every local cell, ghosts too (the bending hinges on the
-        # edges a rank shares need the cell size on both sides), from the law's quadrature
         n_all = self.n_cells + msh.topology.index_map(2).num_ghosts
         detJ = fem.Expression(ufl.JacobianDeterminant(msh), self.points, jit_params=jit)
         weights = (np.abs(detJ.eval(np.arange(n_all, dtype=np.int32))).reshape(n_all, nq)
@@ -132,8 +137,15 @@ class MembraneProblem:
         areas_with_ghosts = weights.sum(axis=1)
         self.cell_areas = areas_with_ghosts[: self.n_cells]
         self._average_weights = weights[: self.n_cells] / self.cell_areas[:, None]
+        return areas_with_ghosts
 
-        # --- spaces and functions
+    def _spaces_and_state(self) -> None:
+        """The displacement space and functions, and the quadrature functions of tau, its
+        tangent and the law's committed state (virgin)."""
+        import ufl
+        from dolfinx import fem
+        from drape.law.nested_surface import LawState
+        msh = self.mesh
         self.V = fem.VectorFunctionSpace(msh, ("CG", 1), dim=3)
         self.u = fem.Function(self.V, name="displacement")
         self.u_committed = fem.Function(self.V, name="committed_displacement")
@@ -144,26 +156,26 @@ class MembraneProblem:
         q_element = ufl.FiniteElement("Quadrature", msh.ufl_cell(), self.degree,
                                       quad_scheme="default")
         self.Q = fem.FunctionSpace(msh, q_element)
-        self.qdofs = self.Q.dofmap.list.array.reshape(-1, nq)[: self.n_cells].ravel()
+        self.qdofs = self.Q.dofmap.list.array.reshape(-1, self.nq)[: self.n_cells].ravel()
         self.tau = fem.Function(self.Q, name="tau")
         self.dtau = fem.Function(self.Q, name="dtau_dC12")
         # the law's committed state, one quadrature function per quantity (LawState.columns)
-        from drape.law.nested_surface import LawState
-        virgin = LawState.virgin(1, law.n).columns()
+        virgin = LawState.virgin(1, self.law.n).columns()
         self.law_state = {name: fem.Function(self.Q, name=f"law_{name}") for name in virgin}
         for name, function in self.law_state.items():
             function.x.array[:] = virgin[name][0]
-        params = law.params
         self.tau.x.array[:] = 0.0
-        self.dtau.x.array[:] = law.two_mu_ksh   # elastic until the first evaluation
+        self.dtau.x.array[:] = self.law.two_mu_ksh   # elastic until the first evaluation
 
-        # --- kinematics in UFL
-        theta = np.radians(yarn_angle_deg)
-        self.yarn_angle_deg = float(yarn_angle_deg)
+    def _membrane_forms(self, v, du):
+        """The kinematics in the yarn frame and the internal virtual work with its Jacobian
+        (module docstring); returns F, C11, C22, C12, the internal work and the Jacobian."""
+        import ufl
+        msh, params, u = self.mesh, self.law.params, self.u
+        theta = np.radians(self.yarn_angle_deg)
         G1 = ufl.as_vector([np.cos(theta), np.sin(theta)])
         G2 = ufl.as_vector([-np.sin(theta), np.cos(theta)])
         I32 = ufl.as_matrix([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
-        u, v, du = self.u, ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
         F = I32 + ufl.grad(u)
         C = F.T * F
         C11, C22, C12 = ufl.dot(G1, C * G1), ufl.dot(G2, C * G2), ufl.dot(G1, C * G2)
@@ -172,46 +184,57 @@ class MembraneProblem:
             return ufl.dot(G1, ufl.sym(F.T * ufl.grad(w)) * G2)
 
         P = ufl.outer(G1, G2) + ufl.outer(G2, G1)
-        S = (params.mu * params.K1 * 0.5 * (C11 - 1.0) * ufl.outer(G1, G1)
-             + params.mu * params.K2 * 0.5 * (C22 - 1.0) * ufl.outer(G2, G2)
-             + 0.5 * self.tau * P)
+        S_yarn = (params.mu * params.K1 * 0.5 * (C11 - 1.0) * ufl.outer(G1, G1)
+                  + params.mu * params.K2 * 0.5 * (C22 - 1.0) * ufl.outer(G2, G2))
+        S_shear = 0.5 * self.tau * P
         dx_law = ufl.dx(domain=msh, metadata={"quadrature_degree": self.degree})
-        dx_extra = ufl.dx(domain=msh, metadata={"quadrature_degree": CONTRIBUTION_DEGREE})
-        internal = ufl.inner(S, ufl.sym(F.T * ufl.grad(v))) * dx_law
-        strip = np.asarray(getattr(blank_mesh, "strip_cells", ()), dtype=np.int32)
-        self.strip_reduced = bool(self.comm.allreduce(len(strip))) and cell_name == "quadrilateral"
-        if self.strip_reduced:
-            # the cells between a clipped yarn lattice and the outline are not yarn-aligned:
-            # their yarn tension at the 2x2 points locks (intra-ply shear locking, docs/
-            # blanks.md); there it is integrated at the cell's centre only (selective reduced
-            # integration), the shear at the law's points as everywhere
-            from dolfinx import mesh as dmesh
-            n_all = msh.topology.index_map(2).size_local + msh.topology.index_map(2).num_ghosts
-            marker = np.zeros(n_all, dtype=np.int32)
-            marker[strip] = 1
-            tags = dmesh.meshtags(msh, 2, np.arange(n_all, dtype=np.int32), marker)
-            S_yarn = (params.mu * params.K1 * 0.5 * (C11 - 1.0) * ufl.outer(G1, G1)
-                      + params.mu * params.K2 * 0.5 * (C22 - 1.0) * ufl.outer(G2, G2))
-            S_shear = 0.5 * self.tau * P
-            dx_tag = ufl.Measure("dx", domain=msh, subdomain_data=tags,
-                                 metadata={"quadrature_degree": self.degree})
-            dx_centre = ufl.Measure("dx", domain=msh, subdomain_data=tags,
-                                    metadata={"quadrature_degree": 1})
-            virtual = ufl.sym(F.T * ufl.grad(v))
-            internal = (ufl.inner(S_yarn, virtual) * dx_tag(0)
-                        + ufl.inner(S_yarn, virtual) * dx_centre(1)
-                        + ufl.inner(S_shear, virtual) * dx_law)
+        virtual = ufl.sym(F.T * ufl.grad(v))
+        internal = self._internal_work(S_yarn, S_shear, virtual, dx_law)
         jacobian = ufl.derivative(internal, u, du) + self.dtau * dE12(du) * 2.0 * dE12(v) * dx_law
-        residual = internal
-        self.damping_constant = fem.Constant(msh, self.damping)
-        k = self.damping_constant
-        residual += k * (u[2] - self.u_committed[2]) * v[2] * dx_extra
-        jacobian += k * du[2] * v[2] * dx_extra
-        regularisation_work = 0.5 * k * (u[2] - self.u_committed[2]) ** 2 * dx_extra
+        self._G1 = G1
+        self._G2 = G2
+        return F, C11, C22, C12, internal, jacobian
 
-        # --- inertia (implicit dynamics; a forming job sets both every step,
-        # drape/forming/press.py):
-        # k_m (u - u_anchor) with u_anchor the motion carried on from the last steps, k_m in N/mm^3
+    def _internal_work(self, S_yarn, S_shear, virtual, dx_law):
+        """int S : sym(F^T grad v) dA; in the strip cells between a clipped yarn lattice and
+        the outline, which are not yarn-aligned, the yarn tension at the 2x2 points locks
+        (intra-ply shear locking, docs/blanks.md), so there it is integrated at the cell's
+        centre only (selective reduced integration), the shear at the law's points as
+        everywhere."""
+        import ufl
+        msh = self.mesh
+        strip = np.asarray(getattr(self.blank_mesh, "strip_cells", ()), dtype=np.int32)
+        self.strip_reduced = (bool(self.comm.allreduce(len(strip)))
+                              and msh.topology.cell_type.name == "quadrilateral")
+        if not self.strip_reduced:
+            return ufl.inner(S_yarn + S_shear, virtual) * dx_law
+        from dolfinx import mesh as dmesh
+        n_all = msh.topology.index_map(2).size_local + msh.topology.index_map(2).num_ghosts
+        marker = np.zeros(n_all, dtype=np.int32)
+        marker[strip] = 1
+        tags = dmesh.meshtags(msh, 2, np.arange(n_all, dtype=np.int32), marker)
+        dx_tag = ufl.Measure("dx", domain=msh, subdomain_data=tags,
+                             metadata={"quadrature_degree": self.degree})
+        dx_centre = ufl.Measure("dx", domain=msh, subdomain_data=tags,
+                                metadata={"quadrature_degree": 1})
+        return (ufl.inner(S_yarn, virtual) * dx_tag(0)
+                + ufl.inner(S_yarn, virtual) * dx_centre(1)
+                + ufl.inner(S_shear, virtual) * dx_law)
+
+    def _regularisation(self, internal, jacobian, v, du, inertia: bool):
+        """The residual and Jacobian with the out-of-plane damping k (u_z - u_z,last) and, with
+        ``inertia``, the inertial term k_m (u - u_anchor), u_anchor the motion carried on from
+        the last steps and k_m in N/mm^3 (a forming job sets both every step through
+        :meth:`set_damping` and :meth:`set_inertia`); also their work over the step."""
+        import ufl
+        from dolfinx import fem
+        from drape.fe.contributions import CONTRIBUTION_DEGREE
+        msh, u = self.mesh, self.u
+        dx_extra = ufl.dx(domain=msh, metadata={"quadrature_degree": CONTRIBUTION_DEGREE})
+        self.damping_constant = k = fem.Constant(msh, self.damping)
+        residual = internal + k * (u[2] - self.u_committed[2]) * v[2] * dx_extra
+        jacobian += k * du[2] * v[2] * dx_extra
+        work = 0.5 * k * (u[2] - self.u_committed[2]) ** 2 * dx_extra
         self.inertia_constant = fem.Constant(msh, 0.0)
         self.u_anchor = None
         if inertia:
@@ -219,86 +242,21 @@ class MembraneProblem:
             k_m, lag = self.inertia_constant, u - self.u_anchor
             residual += k_m * ufl.inner(lag, v) * dx_extra
             jacobian += k_m * ufl.inner(du, v) * dx_extra
-            regularisation_work += 0.5 * k_m * ufl.inner(lag, lag) * dx_extra
+            work += 0.5 * k_m * ufl.inner(lag, lag) * dx_extra
+        return residual, jacobian, work
 
-        # --- bending: hinges across the interior edges (module docstring)
-        self.bending_rigidity = float(bending_rigidity)
-        bending_energy = None
-        if self.bending_rigidity > 0.0:
-            bending_energy = self._bending_energy(F, areas_with_ghosts)
-            bending_residual = ufl.derivative(bending_energy, u, v)
-            residual += bending_residual
-            jacobian += ufl.derivative(bending_residual, u, du)
-
-        # --- point contributions: quadrature functions written before every assembly
-        self.extra_points, self.extra_weights = basix.make_quadrature(basix_cell,
-                                                                      CONTRIBUTION_DEGREE)
-        n_extra = len(self.extra_weights)
-        self._contribution_data = []
-        if self.contributions:
-            fe = ufl.VectorElement("Quadrature", msh.ufl_cell(), CONTRIBUTION_DEGREE, dim=3,
-                                   quad_scheme="default")
-            te = ufl.TensorElement("Quadrature", msh.ufl_cell(), CONTRIBUTION_DEGREE, shape=(3, 3),
-                                   quad_scheme="default")
-            Qf, Qk = fem.FunctionSpace(msh, fe), fem.FunctionSpace(msh, te)
-            x_ref = fem.Expression(ufl.SpatialCoordinate(msh), self.extra_points, jit_params=jit)
-            reference = x_ref.eval(self.cells).reshape(-1, 2)
-            for contribution in self.contributions:
-                force, stiffness = fem.Function(Qf), fem.Function(Qk)
-                residual -= ufl.inner(force, v) * dx_extra
-                jacobian += ufl.inner(stiffness * du, v) * dx_extra
-                contribution.setup(reference)
-                dofs_f = Qf.dofmap.list.array.reshape(-1, n_extra)[: self.n_cells]
-                dofs_k = Qk.dofmap.list.array.reshape(-1, n_extra)[: self.n_cells]
-                self._contribution_data.append((contribution, force, stiffness, dofs_f, dofs_k))
-            X = ufl.as_vector([ufl.SpatialCoordinate(msh)[0], ufl.SpatialCoordinate(msh)[1], 0.0])
-            self._extra_state = fem.Expression(ufl.as_vector([X[i] + u[i] for i in range(3)]
-                                                             + [u[i] for i in range(3)]),
-                                               self.extra_points, jit_params=jit)
-
-        self.residual_form = fem.form(residual, jit_params=jit)
-        self.jacobian_form = fem.form(jacobian, jit_params=jit)
-        self.internal_form = fem.form(internal, jit_params=jit)
-        self.regularisation_work_form = fem.form(regularisation_work, jit_params=jit)
-        self.bending_energy_form = (fem.form(bending_energy, jit_params=jit)
-                                    if bending_energy is not None else None)
-
-        # --- values at the law's points: C in the yarn frame; deformed yarn directions (output)
+    def _point_expressions(self, F, C11, C22, C12, jit: dict) -> None:
+        """Compiled values at the law's points: C in the yarn frame (the law's input), the
+        deformed yarn directions and the reference coordinates (output)."""
+        import ufl
+        from dolfinx import fem
+        G1, G2 = self._G1, self._G2
         self._yarn_C = fem.Expression(ufl.as_vector([C11, C22, C12]), self.points, jit_params=jit)
         self._directions = fem.Expression(ufl.as_vector([(F * G1)[i] for i in range(3)]
                                                         + [(F * G2)[i] for i in range(3)]),
                                           self.points, jit_params=jit)
-        x_points = fem.Expression(ufl.SpatialCoordinate(msh), self.points, jit_params=jit)
+        x_points = fem.Expression(ufl.SpatialCoordinate(self.mesh), self.points, jit_params=jit)
         self.point_coordinates = x_points.eval(self.cells).reshape(-1, 2)
-
-        self.bcs = []
-        self.response = None
-        self._evaluated_at = None
-        #: where a NaN/Inf appeared since the last :meth:`clear_nonfinite` ("law", "residual",
-        #: a contribution's name), on this rank; the solver gathers it after each solve
-        self.nonfinite: set[str] = set()
-        self._finite = True
-
-    def _bending_energy(self, F, area):
-        """W_b (N mm) as a UFL form over the interior facets; h per cell (a DG0 function) from
-        its reference area (local and ghost cells, mm^2): the edge length of a yarn-aligned
-        element, sqrt(area) on quadrilaterals, sqrt(2 area) on triangles (the legs of the right
-        triangles)."""
-        import ufl
-        from dolfinx import fem
-        msh = self.mesh
-        cell_name = msh.topology.cell_type.name
-        n_all = len(area)
-        D0 = fem.FunctionSpace(msh, ("DG", 0))
-        self.cell_size = fem.Function(D0, name="cell_size")
-        dofs = D0.dofmap.list.array.reshape(-1)[:n_all]    # one dof per cell, in cell order
-        self.cell_size.x.array[dofs] = np.sqrt(area * (2.0 if cell_name == "triangle" else 1.0))
-        a3 = ufl.cross(F[:, 0], F[:, 1])
-        normal = a3 / ufl.sqrt(ufl.dot(a3, a3))
-        h = 0.5 * (self.cell_size("+") + self.cell_size("-"))
-        dS = ufl.dS(domain=msh, metadata={"quadrature_degree": 2})
-        return (self.bending_rigidity / (2.0 * h)
-                * ufl.inner(ufl.jump(normal), ufl.jump(normal)) * dS)
 
     # --- the law at the quadrature points ------------------------------------------------------
     def law_state_functions(self) -> dict:
@@ -330,23 +288,19 @@ class MembraneProblem:
                                     self.law.two_mu_ksh, self.neutral_loading_band)
             if self.neutral_loading_band > 0.0 else response.dtau_dC12)
         self.response = response
-        self._finite = _all_finite(response.tau, response.dtau_dC12, response.trial.gamma_p,
+        self._finite = all_finite(response.tau, response.dtau_dC12, response.trial.gamma_p,
                                    response.trial.centres)
         if not self._finite:
             self.nonfinite.add("law")
         self.timings["quadrature_values"] += middle - start + time.perf_counter() - end
         self.timings["law"] += end - middle
         self.counts["law"] += 1
-        if self._contribution_data:
+        if self.point_terms.entries:
             start = time.perf_counter()
-            values = self._extra_state.eval(self.cells).reshape(-1, 6)
-            for contribution, force, stiffness, dofs_f, dofs_k in self._contribution_data:
-                f, K = contribution.evaluate(values[:, :3], values[:, 3:])
-                if not _all_finite(f, K):
-                    self._finite = False
-                    self.nonfinite.add(contribution.name)
-                _write_blocked(force, dofs_f, np.asarray(f).reshape(-1, 3))
-                _write_blocked(stiffness, dofs_k, np.asarray(K).reshape(-1, 9))
+            nonfinite = self.point_terms.evaluate()
+            if nonfinite:
+                self._finite = False
+                self.nonfinite |= nonfinite
             self.timings["contributions"] += time.perf_counter() - start
         self._evaluated_at = self.u.x.array.copy()
 
@@ -497,33 +451,3 @@ class MembraneProblem:
         """Deformed warp and weft directions F G1, F G2 at the law's points, (P, 3) each."""
         values = self._directions.eval(self.cells).reshape(-1, 6)
         return values[:, :3], values[:, 3:]
-
-
-def neutral_loading_tangent(consistent, plastic, plastic_increment, elastic, band):
-    """The shear tangent d tau / d C12 (N/mm) that Newton's Jacobian uses, per law point.
-
-    A point that the step loads only just past its elastic range (near neutral loading) lies on
-    the law's kink: from one Newton iterate to the next it switches between the elastic branch
-    (2 mu Ksh, 284 N/mm with the paper's values) and the plastic one (0.01 N/mm at 3 deg,
-    0.6 at 20 deg, 7 at 35 deg after a monotonic loading), and with the plastic tangent
-    Newton's step overshoots it back onto the elastic branch (on
-    the hemisphere, hundreds of points per iteration; docs/benchmarks.md, "Where the slow
-    stretch comes from"). Where a point is plastic (``plastic``) by less than ``band`` (rad)
-    of plastic shear in the step (``plastic_increment``, from the committed state) this gives
-    the geometric mean of the elastic and the consistent tangent, sqrt(elastic * |consistent|);
-    elsewhere the consistent tangent. Only the Jacobian changes: the residual, and so what
-    a converged step satisfies, is the law's own."""
-    consistent = np.asarray(consistent, dtype=float)
-    near_neutral = np.asarray(plastic) & (np.abs(plastic_increment) < band)
-    return np.where(near_neutral, np.sqrt(elastic * np.abs(consistent)), consistent)
-
-
-def _all_finite(*arrays) -> bool:
-    return all(np.isfinite(np.asarray(a, dtype=float)).all() for a in arrays)
-
-
-def _write_blocked(function, dofs, values) -> None:
-    """Write (cells*points, bs) values into a blocked quadrature function."""
-    bs = function.function_space.dofmap.index_map_bs
-    index = (dofs.reshape(-1, 1) * bs + np.arange(bs)).ravel()
-    function.x.array[index] = values.ravel()

@@ -307,55 +307,36 @@ def first_event(x_start, x_end, k, sigma, mode, anchor, x_anchor, a, h, row, sy,
 
 
 @jit
-def update_point(C11, C22, C12, C11_committed, C22_committed, C12_committed, gamma_p, centres,
-                 gamma_max_deg, active, direction, row, two_mu_ksh, sy, Q, A, bounds, a, h,
-                 c, dc, R, dR, anchor, values, slopes, previous_values, previous_slopes, mode):
-    """One increment of one point (rules 1-8 of docs/material-law.md).
-
-    In: the current yarn-frame C; the committed state (the yarn-frame C of the committed
-    state; centres c_1..c_n, overwritten with the new ones); the parameters (a, h: Table 2 as
-    (rows, n + 1) arrays); scratch arrays of n + 1 (c .. anchor, mode) and 2 n + 2 (values ..
-    previous_slopes) entries, so that nothing is allocated per point. Returns (tau, dtau/dC12,
-    gp, gamma_max_deg, active, direction, row, flow), flow the surface active at the end of a
-    plastic increment, ELASTIC (-1) where gp did not move."""
+def start_branch(C11, C22, C12, C11_committed, C22_committed, C12_committed, x0, sigma,
+                 gamma_max_deg, two_mu_ksh, sy, A, bounds, a, c, R, anchor):
+    """Rule 1: a trial leaving the innermost surface against the branch's direction starts a
+    new branch. Split the increment where tau reaches the innermost edge, latch the Table-2 row
+    of gamma_max there (returned), resize the surfaces at the current gp x0 and re-nest them,
+    outside in (R, anchor and c overwritten)."""
     n = sy.shape[0] - 1
-    for j in range(n + 1):
-        mode[j] = 0
-    x0 = gamma_p
-    gamma_max = max(gamma_max_deg, abs(shear_angle_deg(C11, C22, C12)))
-
-    # 1. elastic trial against the innermost surface
+    tau_split = c[n] + sigma * R[n]
+    C12_split = math.sin(x0) + tau_split / two_mu_ksh
+    change = C12 - C12_committed
+    s = (C12_split - C12_committed) / change if change != 0.0 else 1.0
+    s = min(1.0, max(0.0, s))
+    angle = shear_angle_deg(C11_committed + s * (C11 - C11_committed),
+                            C22_committed + s * (C22 - C22_committed), C12_split)
+    row = table_row(bounds, max(gamma_max_deg, abs(angle)))
+    alpha, _ = series(A, x0)
     for j in range(1, n + 1):
-        anchor[j] = centres[j - 1]
-    chain(x0, n, mode, anchor, x0, a, h, row, sy, Q, A, c, dc, R, dR)
-    sin0 = math.sin(x0)
-    tau = two_mu_ksh * (C12 - sin0)
-    offset = tau - c[n]
-    slack = 8.0 * EPS * (two_mu_ksh * (abs(C12) + abs(sin0)) + abs(c[n]) + R[n])
-    if abs(offset) <= R[n] + slack:
-        return tau, two_mu_ksh, x0, gamma_max, active, direction, row, ELASTIC
-    sigma = 1 if offset > 0.0 else -1
+        R[j] = sy[j] + a[row, j] * alpha
+        gap = R[j - 1] - R[j]
+        anchor[j] = min(max(anchor[j], c[j - 1] - gap), c[j - 1] + gap)
+        c[j] = anchor[j]
+    return row
 
-    k = active
-    if sigma != direction:
-        # 2. a new branch (rule 1): split where tau reaches the innermost edge
-        tau_split = c[n] + sigma * R[n]
-        C12_split = sin0 + tau_split / two_mu_ksh
-        change = C12 - C12_committed
-        s = (C12_split - C12_committed) / change if change != 0.0 else 1.0
-        s = min(1.0, max(0.0, s))
-        angle = shear_angle_deg(C11_committed + s * (C11 - C11_committed),
-                                C22_committed + s * (C22 - C22_committed), C12_split)
-        row = table_row(bounds, max(gamma_max_deg, abs(angle)))
-        alpha, _ = series(A, x0)
-        for j in range(1, n + 1):       # resize at the current gp and re-nest, outside in
-            R[j] = sy[j] + a[row, j] * alpha
-            gap = R[j - 1] - R[j]
-            anchor[j] = min(max(anchor[j], c[j - 1] - gap), c[j - 1] + gap)
-            c[j] = anchor[j]
-        k, direction = n, sigma
 
-    # 3. the march along gp
+@jit
+def march(x0, k, sigma, C12, mode, anchor, a, h, row, sy, Q, A, two_mu_ksh, c, dc, R, dR,
+          values, slopes, previous_values, previous_slopes):
+    """Rules 3-6: plastic flow along gp from x0 in the branch's direction sigma, event by event
+    (a surface carried, released, or handing over), to the root of phi. Returns the end gp,
+    the surface active there and the gp where the surfaces were last anchored."""
     x_anchor = x0
     k = settle_modes(x0, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A, two_mu_ksh,
                      c, dc, R, dR)
@@ -387,6 +368,49 @@ def update_point(C11, C22, C12, C11_committed, C22_committed, C12_committed, gam
             mode[j] = 1 if index % 2 == 1 else -1  # reached by its parent's bound
         k = settle_modes(x, k, sigma, mode, anchor, x_anchor, a, h, row, sy, Q, A, two_mu_ksh,
                          c, dc, R, dR)
+    return x, k, x_anchor
+
+
+@jit
+def update_point(C11, C22, C12, C11_committed, C22_committed, C12_committed, gamma_p, centres,
+                 gamma_max_deg, active, direction, row, two_mu_ksh, sy, Q, A, bounds, a, h,
+                 c, dc, R, dR, anchor, values, slopes, previous_values, previous_slopes, mode):
+    """One increment of one point (rules 1-8 of docs/material-law.md).
+
+    In: the current yarn-frame C; the committed state (the yarn-frame C of the committed
+    state; centres c_1..c_n, overwritten with the new ones); the parameters (a, h: Table 2 as
+    (rows, n + 1) arrays); scratch arrays of n + 1 (c .. anchor, mode) and 2 n + 2 (values ..
+    previous_slopes) entries, so that nothing is allocated per point. Returns (tau, dtau/dC12,
+    gp, gamma_max_deg, active, direction, row, flow), flow the surface active at the end of a
+    plastic increment, ELASTIC (-1) where gp did not move."""
+    n = sy.shape[0] - 1
+    for j in range(n + 1):
+        mode[j] = 0
+    x0 = gamma_p
+    gamma_max = max(gamma_max_deg, abs(shear_angle_deg(C11, C22, C12)))
+
+    # 1. elastic trial against the innermost surface
+    for j in range(1, n + 1):
+        anchor[j] = centres[j - 1]
+    chain(x0, n, mode, anchor, x0, a, h, row, sy, Q, A, c, dc, R, dR)
+    sin0 = math.sin(x0)
+    tau = two_mu_ksh * (C12 - sin0)
+    offset = tau - c[n]
+    slack = 8.0 * EPS * (two_mu_ksh * (abs(C12) + abs(sin0)) + abs(c[n]) + R[n])
+    if abs(offset) <= R[n] + slack:
+        return tau, two_mu_ksh, x0, gamma_max, active, direction, row, ELASTIC
+    sigma = 1 if offset > 0.0 else -1
+
+    k = active
+    if sigma != direction:
+        # 2. a new branch (rule 1)
+        row = start_branch(C11, C22, C12, C11_committed, C22_committed, C12_committed, x0,
+                           sigma, gamma_max_deg, two_mu_ksh, sy, A, bounds, a, c, R, anchor)
+        k, direction = n, sigma
+
+    # 3. the march along gp
+    x, k, x_anchor = march(x0, k, sigma, C12, mode, anchor, a, h, row, sy, Q, A, two_mu_ksh,
+                           c, dc, R, dR, values, slopes, previous_values, previous_slopes)
 
     # 4. the end: surfaces 1..k where the march left them, the inner ones tangent at the
     #    stress point (rule 5), and the consistent tangent (rule 8)
