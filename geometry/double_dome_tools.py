@@ -257,7 +257,7 @@ def _top_inner_edges(gmsh, volume, z, length, width, tol=1e-6):
     """Curves of a volume in the plane z that are not on the block's outer rectangle."""
     edges = []
     for curve in edges_of(gmsh, gmsh.model.getBoundary([(3, volume)], combined=False,
-                                                        oriented=False)):
+                                                       oriented=False)):
         x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(1, curve)
         if abs(z0 - z) > tol * max(1.0, abs(z)) + tol or abs(z1 - z) > tol * max(1.0, abs(z)) + tol:
             continue

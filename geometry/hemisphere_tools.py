@@ -122,7 +122,7 @@ def _circle_edges_at(gmsh, volume, radius, z, tol=1e-6):
     """Curves of a volume lying on the horizontal circle of given radius at height z."""
     found = []
     for curve in edges_of(gmsh, gmsh.model.getBoundary([(3, volume)], combined=False,
-                                                         oriented=False)):
+                                                       oriented=False)):
         x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(1, curve)
         scale = max(1.0, radius)
         if abs(z0 - z) < tol * scale and abs(z1 - z) < tol * scale and \

@@ -58,7 +58,7 @@ def length_and_direction(rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def intersection(P: np.ndarray, a: Distance, a_ok: np.ndarray, b: Distance, b_ok: np.ndarray,
-                  edge_point) -> Distance:
+                 edge_point) -> Distance:
     """Signed distance to the intersection of two solids A and B, from theirs.
 
     Inside both: the larger of the two (exact for an intersection). Outside: if P is outside
