@@ -83,6 +83,35 @@ def build(results, locking_angle, time=None, offscreen=False):
     """The pipeline and the render view; returns (view, info dict)."""
     from paraview import simple as pv
 
+    reader, times, t = open_fields(results, time, offscreen)
+    fields = merged_fields(reader)
+    warped = pv.WarpByVector(registrationName="warped by displacement", Input=fields)
+    warped.Vectors = ["POINTS", "displacement"]
+    warped.ScaleFactor = 1.0
+    warped.UpdatePipeline(t)
+
+    view = render_view(t)
+    show_shear_map(warped, view, locking_angle)
+    show_locking_lines(warped, view, locking_angle)
+    low, high, locked, cells = shear_summary(fields, locking_angle)
+    largest = builtins.max(builtins.abs(low), builtins.abs(high))
+    caption = (f"{os.path.basename(os.path.abspath(results))}: t = {t:.4g}, "
+               f"largest shear angle magnitude {largest:.2f} deg, "
+               f"locking angle {locking_angle:g} deg "
+               f"({locked} of {cells} cells past it)")
+    show_caption(view, caption)
+    place_camera(warped, view)
+    pv.SetActiveSource(warped)
+    info = {"time": t, "times": times, "shear_range": (low, high), "locked_cells": locked,
+            "cells": cells, "caption": caption}
+    return view, info
+
+
+def open_fields(results, time, offscreen):
+    """The reader of RESULTS/fields.xdmf, its load factors and the one to show (the nearest
+    to ``time``, default the last)."""
+    from paraview import simple as pv
+
     path = os.path.join(os.path.abspath(results), "fields.xdmf")
     reader = pv.Xdmf3ReaderS(registrationName="fields.xdmf", FileName=[path])
     values = reader.TimestepValues
@@ -94,12 +123,12 @@ def build(results, locking_angle, time=None, offscreen=False):
         scene = pv.GetAnimationScene()
         scene.UpdateAnimationUsingDataTimeSteps()
         scene.AnimationTime = t
+    return reader, times, t
 
-    fields = merged_fields(reader)
-    warped = pv.WarpByVector(registrationName="warped by displacement", Input=fields)
-    warped.Vectors = ["POINTS", "displacement"]
-    warped.ScaleFactor = 1.0
-    warped.UpdatePipeline(t)
+
+def render_view(t):
+    """The render view at load factor t: white background, orientation axes."""
+    from paraview import simple as pv
 
     view = pv.GetActiveViewOrCreate("RenderView")
     view.ViewTime = t
@@ -109,6 +138,14 @@ def build(results, locking_angle, time=None, offscreen=False):
     except AttributeError:
         pass
     view.OrientationAxesVisibility = 1
+    return view
+
+
+def show_shear_map(warped, view, locking_angle):
+    """The warped blank coloured by the cell shear angle over [-L, +L], beyond it the
+    above/below-range colours, the colour bar annotated at +-L."""
+    from paraview import simple as pv
+
     display = pv.Show(warped, view)
     display.Representation = "Surface With Edges"
     display.EdgeColor = [0.55, 0.55, 0.55]
@@ -133,7 +170,11 @@ def build(results, locking_angle, time=None, offscreen=False):
     bar.RangeLabelFormat = "%-#.1f"
     display.SetScalarBarVisibility(view, True)
 
-    # |shear angle| = locking angle: contour lines of the node-averaged shear angle
+
+def show_locking_lines(warped, view, locking_angle):
+    """|shear angle| = locking angle: black contour lines of the node-averaged shear angle."""
+    from paraview import simple as pv
+
     nodal = pv.CellDatatoPointData(registrationName="shear angle at nodes", Input=warped)
     contour = pv.Contour(registrationName="locking angle", Input=nodal)
     contour.ContourBy = ["POINTS", "shear_angle_deg"]
@@ -143,25 +184,34 @@ def build(results, locking_angle, time=None, offscreen=False):
     lines.AmbientColor = lines.DiffuseColor = [0.0, 0.0, 0.0]
     lines.LineWidth = 3.0
 
+
+def shear_summary(fields, locking_angle):
+    """The shear angle's range (deg), the number of cells at or past the locking angle and
+    the number of cells, from the merged fields."""
+    from paraview import simple as pv
+
     data = pv.servermanager.Fetch(fields)
     shear = data.GetCellData().GetArray("shear_angle_deg")
     low, high = shear.GetRange() if shear is not None else (math.nan, math.nan)
-    largest = builtins.max(builtins.abs(low), builtins.abs(high))
     locked = 0
     if shear is not None:
         locked = builtins.sum(1 for i in range(shear.GetNumberOfTuples())
-                     if builtins.abs(shear.GetValue(i)) >= locking_angle)
-    caption = (f"{os.path.basename(os.path.abspath(results))}: t = {t:.4g}, "
-               f"largest shear angle magnitude {largest:.2f} deg, "
-               f"locking angle {locking_angle:g} deg "
-               f"({locked} of {data.GetNumberOfCells()} cells past it)")
+                              if builtins.abs(shear.GetValue(i)) >= locking_angle)
+    return low, high, locked, data.GetNumberOfCells()
+
+
+def show_caption(view, caption):
+    from paraview import simple as pv
+
     text = pv.Text(registrationName="caption", Text=caption)
     label = pv.Show(text, view)
     label.WindowLocation = "Upper Left Corner"
     label.FontSize = 14
     label.Color = [0.0, 0.0, 0.0]
 
-    # a flat blank is seen from above (+z); a formed one obliquely
+
+def place_camera(warped, view):
+    """A flat blank seen from above (+z); a formed one obliquely; parallel projection."""
     bounds = warped.GetDataInformation().GetBounds()
     size = builtins.max(bounds[1] - bounds[0], bounds[3] - bounds[2], 1e-12)
     view.CameraParallelProjection = 1
@@ -173,10 +223,6 @@ def build(results, locking_angle, time=None, offscreen=False):
         view.CameraViewUp = [0.0, 1.0, 0.0]
     view.CameraFocalPoint = [0.0, 0.0, 0.0]
     view.ResetCamera()
-    pv.SetActiveSource(warped)
-    info = {"time": t, "times": times, "shear_range": (low, high), "locked_cells": locked,
-            "cells": data.GetNumberOfCells(), "caption": caption}
-    return view, info
 
 
 def main(argv=None):

@@ -121,41 +121,51 @@ def main(args) -> int:
         raise InputError("ParaView is not installed (no pvpython on PATH)",
                          expected=f"Debian's ParaView: `{INSTALL_HINT}` (as root)")
     extra = script_arguments(args, results, angle)
-
     if args.screenshot:
-        png = Path(args.screenshot).resolve()
-        if png.suffix.lower() != ".png" or not png.parent.is_dir():
-            raise InputError("not a PNG path in an existing folder", key="--screenshot",
-                             value=args.screenshot, expected="e.g. results/shear.png")
-        command = [pvpython, "--force-offscreen-rendering", str(SCRIPT), *extra,
-                   "--screenshot", str(png), "--size", f"{width}x{height}"]
-        if not os.environ.get("DISPLAY"):
-            # Debian's ParaView renders through GLX: off screen it still needs an X server
-            xvfb = shutil.which("xvfb-run")
-            if xvfb is None:
-                raise InputError("no display and no xvfb-run for off-screen rendering",
-                                 expected=f"`{INSTALL_HINT}` (as root), or a DISPLAY")
-            command = [xvfb, "-a", "-s", f"-screen 0 {width + 64}x{height + 64}x24", *command]
-        for attempt in (1, 2):
-            if png.exists():
-                png.unlink()
-            done = subprocess.run(command, capture_output=True, text=True,
-                                  stdin=subprocess.DEVNULL)
-            if done.returncode == 0 and png.is_file():
-                break
-            # pvpython under Xvfb occasionally aborts while creating its GL context (about 1
-            # run in 10 on a loaded machine, not reproducible on demand): one more attempt
-            print(f"drape view: ParaView exited with code {done.returncode} without a picture"
-                  f"{'; trying once more' if attempt == 1 else ''}", file=sys.stderr)
-        else:
-            lines = (done.stderr or done.stdout).strip().splitlines()
-            why = [line for line in lines if any(word in line for word in
-                                                 ("ERR", "rror", "annot", "ailed", "Signal"))]
-            detail = "; ".join((why or lines)[-4:])
-            raise RunFailed(f"ParaView did not write {png} (exit code {done.returncode}): {detail}")
-        print(done.stdout.strip().replace("paraview_view.py:", "drape view:"))
-        return 0
+        return screenshot(args.screenshot, pvpython, extra, width, height)
+    return open_gui(args.results, results, angle, extra)
 
+
+def screenshot(target: str, pvpython: str, extra: list[str], width: int, height: int) -> int:
+    """Render the picture off screen with pvpython (under xvfb-run without a display) to the
+    PNG ``target``; one more attempt if ParaView exits without it."""
+    png = Path(target).resolve()
+    if png.suffix.lower() != ".png" or not png.parent.is_dir():
+        raise InputError("not a PNG path in an existing folder", key="--screenshot",
+                         value=target, expected="e.g. results/shear.png")
+    command = [pvpython, "--force-offscreen-rendering", str(SCRIPT), *extra,
+               "--screenshot", str(png), "--size", f"{width}x{height}"]
+    if not os.environ.get("DISPLAY"):
+        # Debian's ParaView renders through GLX: off screen it still needs an X server
+        xvfb = shutil.which("xvfb-run")
+        if xvfb is None:
+            raise InputError("no display and no xvfb-run for off-screen rendering",
+                             expected=f"`{INSTALL_HINT}` (as root), or a DISPLAY")
+        command = [xvfb, "-a", "-s", f"-screen 0 {width + 64}x{height + 64}x24", *command]
+    for attempt in (1, 2):
+        if png.exists():
+            png.unlink()
+        done = subprocess.run(command, capture_output=True, text=True,
+                              stdin=subprocess.DEVNULL)
+        if done.returncode == 0 and png.is_file():
+            break
+        # pvpython under Xvfb occasionally aborts while creating its GL context (about 1
+        # run in 10 on a loaded machine, not reproducible on demand): one more attempt
+        print(f"drape view: ParaView exited with code {done.returncode} without a picture"
+              f"{'; trying once more' if attempt == 1 else ''}", file=sys.stderr)
+    else:
+        lines = (done.stderr or done.stdout).strip().splitlines()
+        why = [line for line in lines if any(word in line for word in
+                                             ("ERR", "rror", "annot", "ailed", "Signal"))]
+        detail = "; ".join((why or lines)[-4:])
+        raise RunFailed(f"ParaView did not write {png} (exit code {done.returncode}): {detail}")
+    print(done.stdout.strip().replace("paraview_view.py:", "drape view:"))
+    return 0
+
+
+def open_gui(given: str, results: Path, angle: float, extra: list[str]) -> int:
+    """Open the ParaView GUI on the results (``given``: the folder as the user typed it); with
+    no display or no GUI, print the command to run on a machine that has them."""
     paraview = shutil.which("paraview")
     wrapper = ("import sys\n"
                f"sys.argv = {[str(SCRIPT), *extra]!r}\n"
@@ -166,7 +176,7 @@ def main(args) -> int:
               f"  paraview --script=WRAPPER.py\n"
               f"with WRAPPER.py holding these three lines:\n{wrapper}"
               f"or render a picture here with\n"
-              f"  drape view {args.results} --screenshot shear.png")
+              f"  drape view {given} --screenshot shear.png")
         return 0
     with tempfile.NamedTemporaryFile("w", suffix="_drape_view.py", delete=False) as stream:
         stream.write(wrapper)

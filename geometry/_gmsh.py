@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from drape.forming.surfaces import TriangleSurface
+from drape.forming.triangulated import TriangleSurface
 
 _counter = itertools.count()
 
@@ -236,6 +236,24 @@ def extract_surface(name: str, surface_tags: list[int], side="solid") -> Triangl
     pieces = _surface_pieces(surface_tags)
     if not pieces:
         raise ValueError(f"tool '{name}': no triangles in surfaces {surface_tags}")
+    nodes, tri, surf_id, node_normals = _merged(pieces)
+    component, flip = _components_and_flips(tri, surf_id, len(pieces))
+    tri_flip = flip[surf_id]
+    tri[tri_flip < 0] = tri[tri_flip < 0][:, ::-1]
+    _orient_components(nodes, tri, surf_id, component, side)
+    normals = _vertex_normals(nodes, tri, surf_id, node_normals)
+    used = np.unique(tri)
+    if used.size != len(nodes):  # drop nodes no triangle uses
+        remap = np.full(len(nodes), -1)
+        remap[used] = np.arange(used.size)
+        nodes, normals, tri = nodes[used], normals[used], remap[tri]
+    return TriangleSurface(name, nodes, tri, normals)
+
+
+def _merged(pieces):
+    """The pieces' nodes numbered once (by gmsh tag), their triangles in that numbering, each
+    surface's oriented along gmsh's normal of it; the surface of each triangle; per surface
+    (node indices, gmsh's normals there) where gmsh gives a normal."""
     all_tags = np.unique(np.concatenate([p[1] for p in pieces]))
     nodes = np.zeros((all_tags.size, 3))
     tris, surf_id, node_normals = [], [], []
@@ -255,12 +273,12 @@ def extract_surface(name: str, surface_tags: list[int], side="solid") -> Triangl
         tris.append(local)
         surf_id.append(np.full(len(local), s))
         node_normals.append((index[valid], normals[valid]))
-    tri = np.concatenate(tris)
-    surf_id = np.concatenate(surf_id)
-    component, flip = _components_and_flips(tri, surf_id, len(pieces))
-    tri_flip = flip[surf_id]
-    tri[tri_flip < 0] = tri[tri_flip < 0][:, ::-1]
-    # orient each connected component as a whole
+    return nodes, np.concatenate(tris), np.concatenate(surf_id), node_normals
+
+
+def _orient_components(nodes, tri, surf_id, component, side):
+    """Turn each connected component's triangles (in place) so that it encloses a positive
+    volume (side 'solid') or faces along the direction ``side``."""
     a, b, c = (nodes[tri[:, k]] for k in range(3))
     cross = np.cross(b - a, c - a)
     for comp in np.unique(component):
@@ -270,9 +288,12 @@ def extract_surface(name: str, surface_tags: list[int], side="solid") -> Triangl
         else:
             measure = float(np.sum(cross[in_comp] @ np.asarray(side, dtype=float)))
         if measure < 0:
-            flip[component == comp] *= -1
             tri[in_comp] = tri[in_comp][:, ::-1]
-    # vertex normals: gmsh's, with each surface's final orientation, averaged over surfaces
+
+
+def _vertex_normals(nodes, tri, surf_id, node_normals):
+    """Unit vertex normals: gmsh's, with each surface's final orientation, averaged over the
+    surfaces at a node; the area-weighted triangle normal where gmsh gives none."""
     sums = np.zeros_like(nodes)
     for s, (index, normals) in enumerate(node_normals):
         reference_sign = _surface_sign(tri[surf_id == s], nodes, index, normals)
@@ -285,13 +306,7 @@ def extract_surface(name: str, surface_tags: list[int], side="solid") -> Triangl
     norm = np.linalg.norm(sums, axis=1)
     use_fallback = norm < 0.5
     sums[use_fallback] = fallback[use_fallback]
-    normals = sums / np.linalg.norm(sums, axis=1, keepdims=True)
-    used = np.unique(tri)
-    if used.size != len(nodes):  # drop nodes no triangle uses
-        remap = np.full(len(nodes), -1)
-        remap[used] = np.arange(used.size)
-        nodes, normals, tri = nodes[used], normals[used], remap[tri]
-    return TriangleSurface(name, nodes, tri, normals)
+    return sums / np.linalg.norm(sums, axis=1, keepdims=True)
 
 
 def _surface_sign(tri, nodes, index, normals) -> float:
@@ -309,3 +324,8 @@ def boundary_surfaces(volumes: list[int]) -> list[int]:
     gmsh = _gmsh()
     faces = gmsh.model.getBoundary([(3, v) for v in volumes], combined=False, oriented=False)
     return sorted({abs(t) for _, t in faces})
+
+
+def edges_of(gmsh, dim_tags) -> set[int]:
+    """Tags of the curves bounding the given (dim, tag) entities (without orientation)."""
+    return {abs(t) for _, t in gmsh.model.getBoundary(dim_tags, combined=False, oriented=False)}

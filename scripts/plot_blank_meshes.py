@@ -9,7 +9,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
-from drape.geometry.blank import clipped_lattice, polygon_outline  # noqa: E402
+from drape.geometry.lattice import clipped_lattice  # noqa: E402
+from drape.geometry.outline import polygon_outline  # noqa: E402
 
 phi = 2 * np.pi * np.arange(360) / 360
 disc = 100 * np.column_stack([np.cos(phi), np.sin(phi)])

@@ -108,7 +108,7 @@ def write_double_dome_step(folder, margin: float = 50.0) -> dict[str, Path]:
     import dataclasses
 
     from drape.geometry._gmsh import scratch_model
-    from drape.geometry.tools import DoubleDomeTools, _build_double_dome
+    from drape.geometry.double_dome_tools import DoubleDomeTools, build_double_dome_solids
 
     base = DoubleDomeTools()
     dims = dataclasses.replace(base, die_length=base.die_length + 2 * margin,
@@ -118,7 +118,7 @@ def write_double_dome_step(folder, margin: float = 50.0) -> dict[str, Path]:
     paths = {}
     for name in ("punch", "die", "holder"):
         with scratch_model(f"cad-{name}") as gmsh:
-            volumes = _build_double_dome(gmsh, dims)
+            volumes = build_double_dome_solids(gmsh, dims)
             gmsh.model.occ.remove([(3, tag) for other, tag in volumes.items() if other != name],
                                   recursive=True)
             gmsh.model.occ.synchronize()

@@ -52,7 +52,7 @@ def formed(request, tmp_path_factory):
 # --- the mesh ---------------------------------------------------------------------------------
 
 def lattice(outline, angle, size, circle=None):
-    from drape.geometry.blank import clipped_lattice
+    from drape.geometry.lattice import clipped_lattice
     return clipped_lattice(np.asarray(outline, dtype=float), angle, size, circle=circle)
 
 
@@ -68,7 +68,8 @@ def test_a_clipped_lattice_fills_the_outline_with_yarn_aligned_squares(angle):
     on its edges), all counter-clockwise and convex; every cell off the strip is a square of the
     element size along the yarns (misalignment 0), and the strip is one cell deep (each strip
     cell has two nodes on the outline)."""
-    from drape.geometry.blank import misalignment_deg, polygon_outline
+    from drape.geometry.lattice import misalignment_deg
+    from drape.geometry.outline import polygon_outline
     outline = polygon_outline(OCTAGON)
     nodes, cells, edge, strip = lattice(outline, angle, 6.0)
     area = polygon_area(nodes, cells)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from drape.errors import InputError
-from drape.geometry.blank import diamond_lattice, lattice_periods
+from drape.geometry.lattice import diamond_lattice, lattice_periods
 from drape.job import BlankConfig, MeshConfig
 
 

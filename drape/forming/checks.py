@@ -66,13 +66,13 @@ def blank_half_extents(blank) -> tuple[float, float]:
 def _polygon_radii(blank) -> tuple[float, float]:
     """A polygon blank's distance from the tools' axis to its nearest edge (negative when the
     axis is outside it) and to its farthest vertex (mm)."""
-    from drape.geometry.blank import _closest, _inside
+    from drape.geometry.outline import closest_on_polyline, inside_polygon
     from drape.job import blank_outline
     outline = blank_outline(blank)
     origin = np.zeros((1, 2))
-    gap = float(_closest(outline, origin)[0][0])
+    gap = float(closest_on_polyline(outline, origin)[0][0])
     reach = float(np.linalg.norm(outline, axis=1).max())
-    return (gap if _inside(outline, origin)[0] else -gap), reach
+    return (gap if inside_polygon(outline, origin)[0] else -gap), reach
 
 
 def check_forming(config) -> None:
@@ -140,13 +140,13 @@ def _check_polygon_blank(config, tools, dims, half_extents) -> None:
                              value=f"a vertex at r = {reach:.4g} mm",
                              expected=f"vertices within r = {dims.die_outer_radius:g} mm")
     elif tools.kind == "double_dome":
-        from drape.geometry.blank import _inside
+        from drape.geometry.outline import inside_polygon
         from drape.job import blank_outline
         hx, hy = half_extents
         outline = blank_outline(config.blank)
         ox, oy = _double_dome_cavity(dims)
         corners = np.array([[ox, oy], [-ox, oy], [-ox, -oy], [ox, -oy]])
-        if not _inside(outline, corners).all() or min(hx, hy) <= min(ox, oy):
+        if not inside_polygon(outline, corners).all() or min(hx, hy) <= min(ox, oy):
             raise InputError("the blank does not cover the die cavity", key=key,
                              expected=f"a polygon around the cavity |x| < {ox:g}, "
                                       f"|y| < {oy:g} mm")

@@ -53,7 +53,7 @@ def strip_summary(cells: dict, yarn_angle: float) -> dict:
     (disc and polygon blanks, docs/blanks.md): how many, their share of the blank's area, how
     far their edges turn from the yarns (0 to 45 deg), and the largest yarn strain in them
     and in the yarn-aligned cells, the measure of their locking."""
-    from drape.geometry.blank import misalignment_deg
+    from drape.geometry.lattice import misalignment_deg
     strip = cells["strip"]
     if not strip.any():
         return {}
