@@ -250,6 +250,34 @@ def test_a_one_ply_stack_problem_is_todays_membrane_problem(comm):
     assert np.array_equal(vectors[0][1], vectors[1][1])
 
 
+def test_a_stack_problem_from_its_config(comm):
+    """create_stack_problem: plies, heights, friction laws and the tools' penalty rule."""
+    from drape.fe.stack_problem import create_stack_problem
+    from drape.forming.contact import ContactParameters
+    from drape.law.nested_surface import NestedSurfaceLaw
+    from drape.law.parameters import MaterialParameters
+    stack = load_stack({"plies": [{"thickness": 0.3, "length": 20.0, "width": 20.0},
+                                  {"thickness": 0.5, "shape": "disc", "radius": 8.0}],
+                        "interfaces": [{"friction": 0.25, "rate_exponent": 0.5}]})
+    params = MaterialParameters()
+    problem = create_stack_problem(comm, stack, MeshConfig(size=2.5), ContactParameters(),
+                                   NestedSurfaceLaw(params), 1e-3)
+    contact = problem.ply_contact
+    assert contact.penalty == params.mu * max(params.K1, params.K2) / 2.5 ** 2
+    assert contact.smoothing == 0.05 * 2.5 and contact.regularisation == 0.05
+    assert [(d.slave, d.master, d.sign, d.offset) for d in contact.directions] == [
+        (0, 1, -1.0, 0.4), (1, 0, 1.0, 0.4)]
+    assert contact.directions[0].law.mu0 == 0.25 and contact.directions[0].law.rate_dependent
+    heights = contact.nodes.reference[:, 2]
+    assert set(heights[contact.nodes.ply == 0]) == {0.0}
+    assert set(heights[contact.nodes.ply == 1]) == {0.4}
+    assert math.isclose(contact.nodes.area[contact.nodes.ply == 0].sum(), 400.0)
+    assert math.isclose(contact.nodes.area[contact.nodes.ply == 1].sum(),
+                        problem.comm.allreduce(float(np.sum(
+                            problem.cell_areas[problem.blank_mesh.cell_plies()[
+                                : problem.n_cells] == 1]))))
+
+
 def _by_node(problem, vector):
     """{(x, y, ply): values (3,)} of a PETSc vector's owned nodes, from every rank."""
     xy = problem.V.tabulate_dof_coordinates()[: problem.n_owned, :2]

@@ -239,3 +239,23 @@ class StackProblem(MembraneProblem):
         A.assemble()
         A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
         return A
+
+
+def create_stack_problem(comm, stack, mesh_config, contact, law, damping: float,
+                         centred: bool = True, **options) -> StackProblem:
+    """The StackProblem of a :class:`~drape.forming.plies.StackConfig`: its plies meshed with
+    ``mesh_config`` (``[mesh]``), one :class:`FrictionLaw` per interface, and the penalty,
+    smoothing and stick zone of ``contact`` (``[contact]``, a ContactParameters) by the tools'
+    rule: ε_N = c mu max(K1, K2) / h², g0 = 0.05 h (h = mesh.size), so that plies press on
+    each other as the fabric presses on the tools. ``options`` go to MembraneProblem."""
+    from drape.fe.stack_mesh import create_stack_mesh
+    from drape.forming.ply_contact import FrictionLaw
+    params = law.params
+    h = mesh_config.size
+    mesh = create_stack_mesh(comm, [ply.blank() for ply in stack.plies], stack.heights(),
+                             [ply.thickness for ply in stack.plies], mesh_config, centred)
+    return StackProblem(mesh, law, stack.plies[0].orientation, damping,
+                        [FrictionLaw.of(interface) for interface in stack.interface_list()],
+                        penalty=contact.penalty_for(params.mu * max(params.K1, params.K2), h),
+                        smoothing=contact.smoothing_for(h),
+                        regularisation=contact.slip_regularisation, **options)
