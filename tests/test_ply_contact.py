@@ -447,6 +447,51 @@ def test_friction_plateaus_at_mu_p_A(comm, law, smoothing):
     solver.close()
 
 
+def test_a_ply_pulled_by_its_edge_slides_at_mu_p_A(comm):
+    """The upper ply pulled by its right edge only (the membrane carries the friction to it):
+    Newton converges with the coupled Jacobian (3 to 9 iterations a step: the longer steps
+    cross the stick-slip kink of the friction law), the whole ply ends up sliding, the friction
+    reaches mu p A, and the edge's reaction balances the friction on the other nodes."""
+    from dolfinx import fem
+    from drape.fe.solver import NewtonSolver
+    from drape.job import SolverConfig
+    problem, _, _ = _pressed_plies(comm, CONSTANT, 0.05)
+    V = problem.V
+    ply = problem.ply_contact.nodes.ply[problem.global_nodes]
+    bcs = [fem.dirichletbc(fem.Function(V), np.nonzero(ply == 0)[0].astype(np.int32))]
+    edge = problem.blank_mesh.facets("ply1.right")
+    pulled = []
+    for i in range(2):
+        sub, _ = V.sub(i).collapse()
+        g = fem.Function(sub)
+        dofs = fem.locate_dofs_topological((V.sub(i), sub), 1, edge)
+        bcs.append(fem.dirichletbc(g, dofs, V.sub(i)))
+        pulled.append((g, dofs[0]))
+    problem.bcs = bcs
+    solver = NewtonSolver(problem, SolverConfig(), force_scale=PRESSURE * AREA)
+    edge_x = pulled[0][1][pulled[0][1] < 3 * problem.n_owned]
+    edge_x = edge_x[edge_x % 3 == 0]
+    iterations = []
+    for k in range(1, 7):
+        pulled[0][0].x.array[:] = 0.02 * k
+        result = solver.solve()
+        assert result.converged, result
+        iterations.append(result.iterations)
+        problem.commit(k)
+    friction = _upper_ply_forces(problem)[0]
+    internal = problem.internal_force()
+    reaction = comm.allreduce(float(np.sum(internal.array[edge_x])))
+    forces = problem.forces
+    gathered = np.concatenate(comm.allgather(problem.global_nodes[edge_x // 3]))
+    at_edge = np.isin(forces.nodes, gathered)
+    edge_friction = comm.allreduce(float(np.sum(forces.force[..., 0] * at_edge)))
+    solver.close()
+    assert max(iterations) <= 10, iterations
+    assert np.all(problem.ply_contact.states()[problem.ply_contact.last("pressure") > 0] == 2)
+    assert math.isclose(friction, -0.3 * PRESSURE * AREA, rel_tol=1e-4), friction
+    assert math.isclose(reaction, -(friction - edge_friction), rel_tol=1e-6), (reaction, friction)
+
+
 def _vertices_of(problem, nodes):
     """Mesh vertices at the given (local block) dofs of V: P1, so the dof's own vertex."""
     msh = problem.mesh
