@@ -166,6 +166,20 @@ def test_the_interface_jacobian_is_the_derivative_of_its_forces(law):
         step = step.reshape(n, 3)
         differences[:, j] = (forces(u + step)[0] - forces(u - step)[0]) / (2 * eps)
     assert np.abs(jacobian - differences).max() <= 1e-7 * np.abs(jacobian).max()
+    # friction's memory: kept at commit as contact.elastic_slip says, and through a checkpoint
+    contact.commit()
+    slaves, slip = contact.last("slaves").astype(int), contact.last("slip")
+    sticking = contact.states() == 1
+    first = contact.directions[0].slave == nodes.ply[slaves]
+    kept = np.where(first[:, None], contact.memory[0][slaves], contact.memory[1][slaves])
+    normal = contact.last("normal")
+    tangential = slip - np.sum(slip * normal, axis=1)[:, None] * normal
+    assert np.allclose(kept[sticking], tangential[sticking])
+    assert np.allclose(np.linalg.norm(kept[contact.states() == 2], axis=1), 0.05)
+    again = PlyContact(nodes, (0.5, 0.5), [law], penalty=50.0, smoothing=0.05,
+                       regularisation=0.05)
+    again.load_state(contact.state())
+    assert all(np.array_equal(a, b) for a, b in zip(again.memory, contact.memory))
 
 
 def test_the_friction_law_and_its_derivatives():

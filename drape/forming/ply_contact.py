@@ -152,9 +152,6 @@ class PlyContact:
         self.candidates = [None] * len(self.directions)
         self.searched_at = None
         self.counts = {"searches": 0, "pairs": 0}
-        edges = nodes.reference[nodes.triangles]
-        centroids = edges.mean(axis=1)
-        self._triangle_radius = np.linalg.norm(edges - centroids[:, None], axis=2).max(axis=1)
 
     def set_step_duration(self, seconds: float) -> None:
         """dt (s) of the load step, for the slip rate of a rate-dependent friction law."""
@@ -172,9 +169,11 @@ class PlyContact:
             if not len(slaves) or not len(masters):
                 self.candidates[i] = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
                 continue
-            centroids = x[self.nodes.triangles[masters]].mean(axis=1)
-            reach = (self._triangle_radius[masters].max() + direction.offset + self.smoothing
-                     + 2.0 * self.margin)
+            corners = x[self.nodes.triangles[masters]]
+            centroids = corners.mean(axis=1)
+            # the triangles' radii now: shear changes their shape
+            radius = np.linalg.norm(corners - centroids[:, None], axis=2).max()
+            reach = radius + direction.offset + self.smoothing + 2.0 * self.margin
             found = cKDTree(centroids).query_ball_point(x[slaves], reach)
             counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=len(found))
             pair_slaves = np.repeat(slaves, counts)
@@ -288,6 +287,15 @@ class PlyContact:
                 memory[trial["slaves"]] = elastic_slip(trial["slip"], trial["normal"],
                                                        trial["pressure"], self.regularisation)
             self.memory[i] = memory
+
+    def state(self) -> dict:
+        """Friction's memory (the elastic slip per direction, (N, 3) each) for a checkpoint."""
+        return {f"elastic_slip_{i}": memory for i, memory in enumerate(self.memory)}
+
+    def load_state(self, state: dict) -> None:
+        """Take back what :meth:`state` returned (resume from a checkpoint)."""
+        self.memory = [np.array(state[f"elastic_slip_{i}"], copy=True)
+                       for i in range(len(self.directions))]
 
     def states(self) -> np.ndarray:
         """Of the last evaluation, the state of every pair (0 separated, 1 stick, 2 slip)."""
