@@ -437,6 +437,7 @@ def test_friction_plateaus_at_mu_p_A(comm, law, smoothing):
     step, duration, delta = 0.02, 0.1, 0.05
     problem.ply_contact.set_step_duration(duration)
     rate = step / duration
+    work, closed_form_work = 0.0, 0.0
     for k in range(1, 9):
         pulled[0].x.array[:] = k * step
         result = solver.solve()
@@ -457,8 +458,24 @@ def test_friction_plateaus_at_mu_p_A(comm, law, smoothing):
             assert spread == 0.0
         penetration = comm.allreduce(contact.report()[0]["max_penetration"], op=_max())
         assert penetration <= max(0.0, 2 * PRESSURE / PENALTY - smoothing / 2)
+        # the pressure times the area each node carries: p A up to the normals' tilt
+        assert math.isclose(comm.allreduce(contact.report()[0]["normal_force"]),
+                            PRESSURE * AREA, rel_tol=1e-6)
         problem.commit(k)
+        # friction work: the force at the step's end over the step's slip (backward Euler)
+        work += -friction * step
+        closed_form_work += -closed_form * step
+        reported = comm.allreduce(contact.report()[0]["friction_work"])
+        assert math.isclose(reported, work, rel_tol=1e-4), (k, reported, work)
+        if law is CONSTANT:
+            assert math.isclose(reported, closed_form_work, rel_tol=1e-4)
     solver.close()
+    carrying = contact.last("pressure") > 0.0
+    slaves = contact.last("slaves").astype(int)[carrying]
+    accumulated = np.concatenate([contact.accumulated_slip[i][slaves[contact.nodes.ply[slaves]
+                                                                     == d.slave]]
+                                  for i, d in enumerate(contact.directions)])
+    assert np.allclose(accumulated, 8 * step, rtol=1e-5)     # up to the normals' tilt
 
 
 def test_a_ply_pulled_by_its_edge_slides_at_mu_p_A(comm):

@@ -148,6 +148,11 @@ class PlyContact:
         #: per direction, the elastic slip (N, 3) each slave node held at the last converged
         #: step (friction's memory, as the tools' :class:`~drape.forming.press.ToolContact`)
         self.memory = [np.zeros((n, 3)) for _ in self.directions]
+        #: per direction, each slave node's accumulated tangential slip over the committed
+        #: steps (mm), and per interface the friction work done on them (N mm, this rank's
+        #: slaves: sum over the ranks)
+        self.accumulated_slip = [np.zeros(n) for _ in self.directions]
+        self.friction_work = np.zeros(len(laws))
         self._trial = [None] * len(self.directions)
         self.candidates = [None] * len(self.directions)
         self.searched_at = None
@@ -273,7 +278,8 @@ class PlyContact:
                      * d_weight[:, None, None, :])
         self._trial[i] = {"slaves": slaves, "slip": ds, "normal": n, "gap": g,
                           "pressure": np.where(active, response.pressure, 0.0),
-                          "weight": weight, "state": np.where(active, response.state, SEPARATED)}
+                          "weight": weight, "state": np.where(active, response.state, SEPARATED),
+                          "traction": t, "slip_increment": tangential}
         keep = active & ((response.pressure > 0.0) | (np.abs(dt).max(axis=(1, 2)) > 0.0))
         return PairForces(nodes[keep], force[keep],
                           jacobian[keep].reshape(-1, 4, 3, 4, 3))
@@ -284,6 +290,14 @@ class PlyContact:
         for i, trial in enumerate(self._trial):
             memory = np.zeros_like(self.memory[i])
             if trial is not None:
+                # the step's tangential relative motion, and the work friction did against it
+                increment = trial["slip_increment"]
+                normal = trial["normal"]
+                t = trial["traction"]
+                friction = t - np.sum(t * normal, axis=1)[:, None] * normal
+                self.friction_work[self.directions[i].interface] -= float(np.sum(
+                    trial["weight"] * np.sum(friction * increment, axis=1)))
+                self.accumulated_slip[i][trial["slaves"]] += np.linalg.norm(increment, axis=1)
                 memory[trial["slaves"]] = elastic_slip(trial["slip"], trial["normal"],
                                                        trial["pressure"], self.regularisation)
             self.memory[i] = memory
@@ -309,14 +323,20 @@ class PlyContact:
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def report(self) -> dict:
-        """Of the last evaluation, per interface: the largest penetration (mm, >= 0) and the
-        number of slave nodes in contact (this rank's)."""
+        """Of the last evaluation, per interface (this rank's slave nodes): the largest
+        penetration (mm, >= 0), the nodes in contact, the area they carry (mm², half per
+        direction) and the normal force (N); the friction work up to the last commit (N mm)."""
         out = {}
         for direction, trial in zip(self.directions, self._trial):
-            entry = out.setdefault(direction.interface, {"max_penetration": 0.0,
-                                                         "nodes_in_contact": 0})
+            entry = out.setdefault(direction.interface, {
+                "max_penetration": 0.0, "nodes_in_contact": 0, "contact_area": 0.0,
+                "normal_force": 0.0,
+                "friction_work": float(self.friction_work[direction.interface])})
             if trial is None:
                 continue
+            carrying = trial["pressure"] > 0.0
+            entry["contact_area"] += float(np.sum(trial["weight"][carrying]))
+            entry["normal_force"] += float(np.sum(trial["weight"] * trial["pressure"]))
             touching = (trial["weight"] > 0.0) & (trial["gap"] < 0.0)
             if touching.any():
                 entry["max_penetration"] = max(entry["max_penetration"],
