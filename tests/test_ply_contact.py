@@ -150,6 +150,16 @@ def test_the_interface_jacobian_is_the_derivative_of_its_forces(law):
         return out.ravel(), pairs
 
     f, pairs = forces(u)
+    # a common translation needs no new search; a node moved apart by more than the margin does
+    searches = contact.counts["searches"]
+    contact.evaluate(u + [3.0, -2.0, 1.0], committed)
+    assert contact.counts["searches"] == searches
+    apart = u.copy()
+    apart[0] += [0.6, 0.0, 0.0]
+    contact.evaluate(apart, committed)
+    assert contact.counts["searches"] == searches + 1
+    contact.search(u)
+    f, pairs = forces(u)
     states = np.bincount(contact.states(), minlength=3)
     assert states[1] > 0 and states[2] > 0, states              # stick and slip both
     weights = contact.last("weight") / (0.5 * nodes.area[contact.last("slaves").astype(int)])

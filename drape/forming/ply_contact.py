@@ -24,9 +24,9 @@ law's partial derivatives with respect to g, n, ds and mu are read off its tange
 (:func:`_law_partials`), so nothing of the law is written twice.
 
 Candidate pairs come from scipy's cKDTree on the master triangles' centroids, once per load
-step (:meth:`PlyContact.search`), within the contact reach plus a margin; a node that moves
-more than half the margin since the search triggers a new one, so the closest triangle is
-always among the candidates. Plain numpy on global node numbers: the FE layer
+step (:meth:`PlyContact.search`), within the contact reach plus a margin; nodes that move
+more than the margin relative to each other since the search trigger a new one, so the
+closest triangle is always among the candidates. Plain numpy on global node numbers: the FE layer
 (:mod:`drape.fe.stack_problem`) gathers the displacements and assembles.
 """
 
@@ -189,10 +189,15 @@ class PlyContact:
         self.counts["searches"] += 1
 
     def _ensure_candidates(self, u) -> None:
-        if self.searched_at is None or (
-                np.max(np.linalg.norm(u - self.searched_at, axis=1), initial=0.0)
-                > 0.5 * self.margin):
-            self.search(u)
+        """Search again once two nodes may have moved more than the margin relative to each
+        other since the last search (their motions differ from the middle of all motions by
+        at most half the margin each): a common translation needs no new search."""
+        if self.searched_at is not None and len(u):
+            motion = u - self.searched_at
+            middle = 0.5 * (motion.max(axis=0) + motion.min(axis=0))
+            if np.max(np.linalg.norm(motion - middle, axis=1)) <= 0.5 * self.margin:
+                return
+        self.search(u)
 
     def coupled_nodes(self) -> list[np.ndarray]:
         """Per direction, the candidate pairs as (P, 4) node numbers (slave, triangle): what
