@@ -1,0 +1,261 @@
+"""The membrane problem of a stack of plies: MembraneProblem plus the ply-ply contact.
+
+:class:`StackProblem` is a :class:`~drape.fe.membrane.MembraneProblem` on a
+:class:`~drape.fe.stack_mesh.StackMesh` whose residual and Jacobian also hold the ply-ply
+contact of :mod:`drape.forming.ply_contact`. The contact couples a node of one ply with the
+nodes of a triangle of another: entries a form's sparsity pattern does not have. So
+:meth:`StackProblem.create_matrix` builds the form's pattern, adds every candidate pair's node
+blocks to it (over an index map whose ghosts include the partner nodes another rank owns),
+finalises it and creates the matrix from it; the coupling is added after the form's assembly,
+with global indices (PETSc sends the entries of rows another rank owns).
+
+MPI: every residual gathers the owned displacements of all ranks into one global (N, 3) array
+(:meth:`gather`), each rank evaluates the pairs of the slave nodes it owns, so every pair is
+counted once whatever the partition, and 1 rank gives what 2 give (tests/test_ply_contact.py).
+Rows and columns of Dirichlet dofs get no contact entries: their rows hold the boundary
+condition, and (as DOLFINx's lifting does for the form) their columns' effect is dropped from
+the Jacobian, which is exact once the iterate satisfies the conditions.
+
+Ply orientation and material are still those of the whole mesh (MembraneProblem's single
+yarn angle and law): per-ply ones are the next step (docs/plies.md, "Not wired yet").
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from drape.fe.membrane import MembraneProblem
+from drape.forming.ply_contact import DEFAULT_MARGIN, PlyContact, StackNodes, split_cells
+
+
+class StackProblem(MembraneProblem):
+    """MembraneProblem on a stack with ply-ply contact (module docstring). ``laws``: a
+    :class:`~drape.forming.ply_contact.FrictionLaw` per interface; ``penalty`` ε_N (N/mm³),
+    ``smoothing`` g0 (mm) and ``regularisation`` δ (mm) as the tools' contact."""
+
+    def __init__(self, stack_mesh, law, yarn_angle_deg: float, damping: float, laws,
+                 penalty: float, smoothing: float, regularisation: float,
+                 margin: float = DEFAULT_MARGIN, **options):
+        super().__init__(stack_mesh, law, yarn_angle_deg, damping, **options)
+        self.timings.update(ply_search=0.0, ply_forces=0.0, ply_assembly=0.0)
+        index_map = self.V.dofmap.index_map
+        self.n_owned = index_map.size_local
+        n_local = self.n_owned + index_map.num_ghosts
+        self.global_nodes = np.asarray(index_map.local_to_global(
+            np.arange(n_local, dtype=np.int32)), dtype=np.int64)
+        self.n_global = index_map.size_global
+        ranges = self.comm.allgather(index_map.local_range)
+        self._range_starts = np.array([r[0] for r in ranges], dtype=np.int64)
+        self.first = index_map.local_range[0]
+        nodes = self._stack_nodes(stack_mesh)
+        owned = np.zeros(self.n_global, dtype=bool)
+        owned[self.global_nodes[: self.n_owned]] = True
+        self.ply_contact = PlyContact(nodes, stack_mesh.thicknesses, laws, penalty, smoothing,
+                                      regularisation, owned=owned, margin=margin)
+        self.begin_step()
+        self._forces_at = None
+        self._constrained_for = None
+
+    # --- the stack's nodes, gathered ------------------------------------------------------------
+    def _stack_nodes(self, stack_mesh) -> StackNodes:
+        import ufl
+        from dolfinx import fem
+        from dolfinx.fem import petsc as fpetsc
+        from petsc4py import PETSc
+
+        V, n_owned = self.V, self.n_owned
+        cell_ply = stack_mesh.cell_plies()
+        nv = V.dofmap.dof_layout.num_dofs
+        cells = V.dofmap.list.array.reshape(-1, nv)
+        node_ply = np.full(len(self.global_nodes), -1, dtype=np.int32)
+        node_ply[cells.ravel()] = np.repeat(cell_ply[: len(cells)], nv)
+        xy = V.tabulate_dof_coordinates()[:, :2]
+        # lumped nodal areas: the integral of each shape function over the reference
+        v = ufl.TestFunction(V)
+        area = fpetsc.assemble_vector(fem.form(v[0] * ufl.dx(domain=self.mesh)))
+        area.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        areas = area.array.reshape(-1, 3)[:n_owned, 0].copy()
+        area.destroy()
+        n_cells = self.n_cells
+        mine = (self.global_nodes[:n_owned], xy[:n_owned], node_ply[:n_owned], areas,
+                self.global_nodes[cells[:n_cells]], cell_ply[:n_cells])
+        parts = self.comm.allgather(mine)
+        reference = np.zeros((self.n_global, 3))
+        ply = np.zeros(self.n_global, dtype=np.int32)
+        nodal_area = np.zeros(self.n_global)
+        for ids, part_xy, part_ply, part_area, _, _ in parts:
+            reference[ids, :2], ply[ids], nodal_area[ids] = part_xy, part_ply, part_area
+        reference[:, 2] = np.asarray(stack_mesh.heights)[ply]
+        all_cells = np.vstack([p[4] for p in parts])
+        all_cell_ply = np.concatenate([p[5] for p in parts])
+        triangles, origin = split_cells(all_cells, reference[:, :2])
+        self._node_order = np.concatenate([p[0] for p in parts])
+        return StackNodes(reference, ply, nodal_area, triangles, all_cell_ply[origin])
+
+    def gather(self, function) -> np.ndarray:
+        """A vector function's nodal values on all ranks, (N, 3) in global node numbers."""
+        owned = function.x.array.reshape(-1, 3)[: self.n_owned]
+        out = np.empty((self.n_global, 3))
+        out[self._node_order] = np.vstack(self.comm.allgather(owned))
+        return out
+
+    # --- steps ----------------------------------------------------------------------------------
+    def begin_step(self) -> None:
+        """Search the candidate pairs at the current displacement (once per load step)."""
+        start = time.perf_counter()
+        self.ply_contact.search(self.gather(self.u))
+        self.timings["ply_search"] += time.perf_counter() - start
+
+    def commit(self, t: float | None = None) -> None:
+        super().commit(t)
+        self._ensure_forces()
+        self.ply_contact.commit()
+        self.begin_step()
+
+    def _ensure_forces(self):
+        from mpi4py import MPI
+        changed = self._forces_at is None or not np.array_equal(self._forces_at, self.u.x.array)
+        # collective: the gather below must run on every rank, also where u did not change
+        if self.comm.allreduce(changed, op=MPI.LOR):
+            start = time.perf_counter()
+            searches = self.ply_contact.counts["searches"]
+            self.forces = self.ply_contact.evaluate(self.gather(self.u),
+                                                    self.gather(self.u_committed))
+            if self.ply_contact.counts["searches"] != searches:
+                self.counts["ply_research"] = self.counts.get("ply_research", 0) + 1
+            self._forces_at = self.u.x.array.copy()
+            self.timings["ply_forces"] += time.perf_counter() - start
+        return self.forces
+
+    def _constrained(self) -> np.ndarray:
+        """Global mask of the Dirichlet dofs (N * 3,), the same on every rank."""
+        key = tuple(id(bc) for bc in self.bcs)
+        if self._constrained_for != key:
+            local = [bc.dof_indices()[0] for bc in self.bcs]
+            local = np.concatenate(local) if local else np.zeros(0, dtype=np.int32)
+            local = local[local < 3 * self.n_owned]
+            dofs = 3 * self.global_nodes[local // 3] + local % 3
+            mask = np.zeros(3 * self.n_global, dtype=bool)
+            mask[np.concatenate(self.comm.allgather(dofs)).astype(np.int64)] = True
+            self._mask, self._constrained_for = mask, key
+        return self._mask
+
+    # --- SNES callbacks -------------------------------------------------------------------------
+    def residual(self, snes, x, b) -> None:
+        from petsc4py import PETSc
+        super().residual(snes, x, b)
+        forces = self._ensure_forces()
+        start = time.perf_counter()
+        if not np.isfinite(forces.force).all():
+            self.nonfinite.add("ply contact")
+            b.array[:] = np.nan
+            return
+        rows = (3 * forces.nodes[:, :, None] + np.arange(3)).ravel()
+        values = -forces.force.ravel()
+        keep = ~self._constrained()[rows]
+        b.setValues(rows[keep].astype(PETSc.IntType), values[keep], addv=PETSc.InsertMode.ADD)
+        b.assemblyBegin()
+        b.assemblyEnd()
+        self.timings["ply_assembly"] += time.perf_counter() - start
+
+    def jacobian(self, snes, x, A, P) -> None:
+        from petsc4py import PETSc
+        super().jacobian(snes, x, A, P)
+        forces = self._ensure_forces()
+        start = time.perf_counter()
+        constrained = self._constrained()
+        dofs = (3 * forces.nodes[:, :, None] + np.arange(3)).reshape(-1, 12)
+        blocks = -forces.jacobian.reshape(-1, 12, 12)
+        free = ~constrained[dofs]
+        blocks = blocks * free[:, :, None] * free[:, None, :]
+        for pair_dofs, block in zip(dofs.astype(PETSc.IntType), blocks):
+            A.setValues(pair_dofs, pair_dofs, block, addv=PETSc.InsertMode.ADD)
+        A.assemble()
+        self.timings["ply_assembly"] += time.perf_counter() - start
+
+    def create_matrix(self, mat_type: str | None = None):
+        """The form's sparsity pattern enlarged by the candidate pairs' blocks (module
+        docstring); pairs a later search finds outside it are still accepted (PETSc allocates
+        them), so a pattern made at the first step stays valid."""
+        from dolfinx import cpp, fem
+        from petsc4py import PETSc
+
+        form_pattern = fem.create_sparsity_pattern(self.jacobian_form)
+        form_pattern.assemble()
+        graph = form_pattern.graph
+        # the owned rows (the graph may list the ghost rows after them, empty)
+        offsets = np.asarray(graph.offsets)[: self.n_owned + 1]
+        rows = np.repeat(np.arange(self.n_owned, dtype=np.int64), np.diff(offsets))
+        columns = np.asarray(form_pattern.column_index_map().local_to_global(
+            np.asarray(graph.array[: offsets[-1]], dtype=np.int32)), dtype=np.int64)
+        rows = self.first + rows
+        pairs = [p for p in self.ply_contact.coupled_nodes() if len(p)]
+        if pairs:
+            pairs = np.vstack(pairs)
+            pair_rows = np.repeat(pairs, 4, axis=1).ravel()
+            pair_columns = np.tile(pairs, (1, 4)).ravel()
+            rows = np.concatenate([rows, pair_rows])
+            columns = np.concatenate([columns, pair_columns])
+        index_map = self.V.dofmap.index_map
+        ghosts = np.asarray(index_map.ghosts, dtype=np.int64)
+        last = self.first + self.n_owned
+        outside = np.unique(np.concatenate([rows, columns]))
+        outside = outside[((outside < self.first) | (outside >= last))
+                          & ~np.isin(outside, ghosts)]
+        all_ghosts = np.concatenate([ghosts, outside])
+        owners = np.searchsorted(self._range_starts, all_ghosts, side="right") - 1
+        extended = cpp.common.IndexMap(self.comm, self.n_owned, all_ghosts,
+                                       owners.astype(np.int32))
+        local = {int(g): self.n_owned + i for i, g in enumerate(all_ghosts)}
+
+        def to_local(indices):
+            owned = (indices >= self.first) & (indices < last)
+            out = np.empty(len(indices), dtype=np.int32)
+            out[owned] = indices[owned] - self.first
+            out[~owned] = [local[int(g)] for g in indices[~owned]]
+            return out
+
+        pattern = cpp.la.SparsityPattern(self.comm, [extended, extended], [3, 3])
+        local_rows, local_columns = to_local(rows), to_local(columns)
+        order = np.argsort(local_rows, kind="stable")
+        local_rows, local_columns = local_rows[order], local_columns[order]
+        starts = np.flatnonzero(np.r_[True, local_rows[1:] != local_rows[:-1]])
+        ends = np.r_[starts[1:], len(local_rows)]
+        for s, e in zip(starts, ends):
+            pattern.insert(local_rows[s: s + 1], local_columns[s:e])
+        pattern.assemble()
+        A = cpp.la.petsc.create_matrix(self.comm, pattern, mat_type or "")
+        # zeros at every entry of the pattern, then an assembly: PETSc drops the preallocated
+        # entries an assembly finds unset, and the first Jacobian's form assembly (finished by
+        # an assembly of its own) would drop the coupling's before it is added
+        global_rows = rows[order]
+        global_columns = columns[order]
+        for s, e in zip(starts, ends):
+            A.setValuesBlocked(global_rows[s: s + 1].astype(PETSc.IntType),
+                               global_columns[s:e].astype(PETSc.IntType),
+                               np.zeros(9 * (e - s)), addv=PETSc.InsertMode.ADD)
+        A.assemble()
+        A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        return A
+
+
+def create_stack_problem(comm, stack, mesh_config, contact, law, damping: float,
+                         centred: bool = True, **options) -> StackProblem:
+    """The StackProblem of a :class:`~drape.forming.plies.StackConfig`: its plies meshed with
+    ``mesh_config`` (``[mesh]``), one :class:`FrictionLaw` per interface, and the penalty,
+    smoothing and stick zone of ``contact`` (``[contact]``, a ContactParameters) by the tools'
+    rule: ε_N = c mu max(K1, K2) / h², g0 = 0.05 h (h = mesh.size), so that plies press on
+    each other as the fabric presses on the tools. ``options`` go to MembraneProblem."""
+    from drape.fe.stack_mesh import create_stack_mesh
+    from drape.forming.ply_contact import FrictionLaw
+    params = law.params
+    h = mesh_config.size
+    mesh = create_stack_mesh(comm, [ply.blank() for ply in stack.plies], stack.heights(),
+                             [ply.thickness for ply in stack.plies], mesh_config, centred)
+    return StackProblem(mesh, law, stack.plies[0].orientation, damping,
+                        [FrictionLaw.of(interface) for interface in stack.interface_list()],
+                        penalty=contact.penalty_for(params.mu * max(params.K1, params.K2), h),
+                        smoothing=contact.smoothing_for(h),
+                        regularisation=contact.slip_regularisation, **options)

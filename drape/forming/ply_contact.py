@@ -1,0 +1,453 @@
+"""Ply-ply contact: node-to-surface penalty contact with friction between adjacent plies.
+
+Every interface (plies i below, j = i + 1 above) is searched in both directions: the nodes of
+ply i against the mid-surface of ply j, and those of ply j against ply i's. The master surface
+is the ply's deformed mid-surface, its quadrilaterals split into two flat triangles. For a
+slave node x_s and its closest master triangle (a, b, c):
+
+    n = sigma (x_b - x_a) x (x_c - x_a) / |...|    (sigma = -1 if the master lies above)
+    g = (x_s - x_a) . n - (t_i + t_j) / 2           (mid-surfaces less the half thicknesses)
+    lambda = barycentric coordinates of x_s's projection on the triangle's plane
+    ds = du_s - sum_k lambda_k du_k + m             (relative slip since the last converged
+                                                     step plus the elastic slip m held then)
+
+The traction t(g, n, ds) is the tools' law (:func:`drape.forming.contact.traction`: smoothed
+penalty, regularised Coulomb friction with stick memory); the slave node receives w t and the
+master's nodes -lambda_k w t, w half the slave's reference nodal area (each direction carries
+half, so two coincident plies under a pressure p carry p over their area). The friction
+coefficient may depend on p and on the slip rate v = |(I - n n)(ds - m)| / dt
+(:class:`FrictionLaw`).
+
+The Jacobian is exact: the geometry (n, g, lambda, ds) is differentiated with respect to the
+12 coordinates of the slave and master nodes (forward mode, :func:`_pair_geometry`), and the
+law's partial derivatives with respect to g, n, ds and mu are read off its tangent
+(:func:`_law_partials`), so nothing of the law is written twice.
+
+Candidate pairs come from scipy's cKDTree on the master triangles' centroids, once per load
+step (:meth:`PlyContact.search`), within the contact reach plus a margin; nodes that move
+more than the margin relative to each other since the search trigger a new one, so the
+closest triangle is always among the candidates. Plain numpy on global node numbers: the FE layer
+(:mod:`drape.fe.stack_problem`) gathers the displacements and assembles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from drape.forming.contact import SEPARATED, elastic_slip, normal_pressure, traction
+from drape.forming.surfaces import closest_point_on_triangles
+
+#: a slave node whose projection falls outside its closest master triangle (beyond a ply's
+#: edge) loses its contact smoothly: its weight falls from 1 at the triangle's edge to 0 at
+#: this far outside it, in barycentric coordinates (a C1 ramp, so that Newton sees no jump)
+EDGE_RAMP = 0.1
+#: default search margin (mm): how far nodes may move between searches
+DEFAULT_MARGIN = 0.5
+
+
+class FrictionLaw:
+    """mu(p, v) = mu0 (1 + p/p_ref)^-a (1 + v/v_ref)^b with its partial derivatives
+    (p in N/mm², v in mm/s; :class:`drape.forming.plies.InterfaceConfig`)."""
+
+    def __init__(self, friction, reference_pressure=1.0, pressure_exponent=0.0,
+                 reference_slip_rate=1.0, rate_exponent=0.0):
+        self.mu0, self.p_ref, self.a = float(friction), float(reference_pressure), \
+            float(pressure_exponent)
+        self.v_ref, self.b = float(reference_slip_rate), float(rate_exponent)
+
+    @classmethod
+    def of(cls, interface) -> "FrictionLaw":
+        return cls(interface.friction, interface.reference_pressure,
+                   interface.pressure_exponent, interface.reference_slip_rate,
+                   interface.rate_exponent)
+
+    @property
+    def rate_dependent(self) -> bool:
+        return self.b != 0.0
+
+    def __call__(self, pressure, rate):
+        """mu, dmu/dp (mm²/N), dmu/dv (s/mm) at N points."""
+        p, v = np.asarray(pressure, dtype=float), np.asarray(rate, dtype=float)
+        mu = self.mu0 * (1.0 + p / self.p_ref) ** -self.a * (1.0 + v / self.v_ref) ** self.b
+        return mu, -self.a * mu / (self.p_ref + p), self.b * mu / (self.v_ref + v)
+
+
+@dataclasses.dataclass
+class StackNodes:
+    """The stack's nodes and master triangles in global numbering (the same on every rank)."""
+
+    reference: np.ndarray     # (N, 3) reference position: X, Y and the ply's height (mm)
+    ply: np.ndarray           # (N,) the ply of each node
+    area: np.ndarray          # (N,) lumped reference area of each node (mm²)
+    triangles: np.ndarray     # (T, 3) node numbers, counter-clockwise seen from +z
+    triangle_ply: np.ndarray  # (T,)
+
+
+@dataclasses.dataclass
+class Direction:
+    """One direction of one interface: slave ply's nodes against master ply's triangles."""
+
+    interface: int
+    slave: int
+    master: int
+    sign: float               # +1: the master lies below the slave, -1: above
+    offset: float             # (t_slave + t_master) / 2, mm
+    law: FrictionLaw
+
+
+class PairForces(NamedTuple):
+    """The contact forces of P active pairs: nodes (P, 4) (slave, then the master triangle's
+    three), forces on them (P, 4, 3) in N, and their derivatives with respect to the nodes'
+    displacements (P, 4, 3, 4, 3) in N/mm."""
+
+    nodes: np.ndarray
+    force: np.ndarray
+    jacobian: np.ndarray
+
+
+def split_cells(cells: np.ndarray, reference_xy: np.ndarray, dolfinx_quads: bool = True):
+    """Triangles (T, 3) of the cells (M, 3 or 4): a quadrilateral in DOLFINx's vertex order
+    (0, 1, 3, 2 around it) into (0, 1, 3) and (0, 3, 2); each turned counter-clockwise in the
+    reference plane; also the index of the cell each came from."""
+    cells = np.asarray(cells)
+    if cells.shape[1] == 4:
+        order = ([0, 1, 3], [0, 3, 2]) if dolfinx_quads else ([0, 1, 2], [0, 2, 3])
+        triangles = np.vstack([cells[:, order[0]], cells[:, order[1]]])
+        origin = np.concatenate([np.arange(len(cells))] * 2)
+    else:
+        triangles, origin = cells.copy(), np.arange(len(cells))
+    p = reference_xy[triangles]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    clockwise = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    triangles[clockwise] = triangles[clockwise][:, [0, 2, 1]]
+    return triangles, origin
+
+
+class PlyContact:
+    """The contact of every interface of a stack, both directions, for the slave nodes this
+    rank owns (``owned``, a boolean mask over the global nodes)."""
+
+    def __init__(self, nodes: StackNodes, thicknesses, laws, penalty: float,
+                 smoothing: float, regularisation: float, owned=None,
+                 margin: float = DEFAULT_MARGIN):
+        self.nodes = nodes
+        self.penalty, self.smoothing = float(penalty), float(smoothing)
+        self.regularisation, self.margin = float(regularisation), float(margin)
+        n = len(nodes.reference)
+        self.owned = np.ones(n, dtype=bool) if owned is None else np.asarray(owned, dtype=bool)
+        self.directions = []
+        for k, law in enumerate(laws):
+            offset = 0.5 * (thicknesses[k] + thicknesses[k + 1])
+            self.directions.append(Direction(k, k, k + 1, -1.0, offset, law))
+            self.directions.append(Direction(k, k + 1, k, +1.0, offset, law))
+        self.step_duration = None
+        #: per direction, the elastic slip (N, 3) each slave node held at the last converged
+        #: step (friction's memory, as the tools' :class:`~drape.forming.press.ToolContact`)
+        self.memory = [np.zeros((n, 3)) for _ in self.directions]
+        #: per direction, each slave node's accumulated tangential slip over the committed
+        #: steps (mm), and per interface the friction work done on them (N mm, this rank's
+        #: slaves: sum over the ranks)
+        self.accumulated_slip = [np.zeros(n) for _ in self.directions]
+        self.friction_work = np.zeros(len(laws))
+        self._trial = [None] * len(self.directions)
+        self.candidates = [None] * len(self.directions)
+        self.searched_at = None
+        self.counts = {"searches": 0, "pairs": 0}
+
+    def set_step_duration(self, seconds: float) -> None:
+        """dt (s) of the load step, for the slip rate of a rate-dependent friction law."""
+        self.step_duration = float(seconds)
+
+    # --- candidate pairs ------------------------------------------------------------------------
+    def search(self, u: np.ndarray) -> None:
+        """Candidate (slave, triangle) pairs at displacements u (N, 3): every master triangle
+        whose centroid lies within its radius plus the contact reach plus the margin of a slave
+        node this rank owns."""
+        x = self.nodes.reference + u
+        for i, direction in enumerate(self.directions):
+            slaves = np.nonzero(self.owned & (self.nodes.ply == direction.slave))[0]
+            masters = np.nonzero(self.nodes.triangle_ply == direction.master)[0]
+            if not len(slaves) or not len(masters):
+                self.candidates[i] = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+                continue
+            corners = x[self.nodes.triangles[masters]]
+            centroids = corners.mean(axis=1)
+            # the triangles' radii now: shear changes their shape
+            radius = np.linalg.norm(corners - centroids[:, None], axis=2).max()
+            reach = radius + direction.offset + self.smoothing + 2.0 * self.margin
+            found = cKDTree(centroids).query_ball_point(x[slaves], reach)
+            counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=len(found))
+            pair_slaves = np.repeat(slaves, counts)
+            pair_triangles = masters[np.concatenate(found).astype(np.int64)] if counts.sum() \
+                else np.zeros(0, dtype=np.int64)
+            self.candidates[i] = (pair_slaves, pair_triangles)
+        self.searched_at = np.array(u, copy=True)
+        self.counts["searches"] += 1
+
+    def _ensure_candidates(self, u) -> None:
+        """Search again once two nodes may have moved more than the margin relative to each
+        other since the last search (their motions differ from the middle of all motions by
+        at most half the margin each): a common translation needs no new search."""
+        if self.searched_at is not None and len(u):
+            motion = u - self.searched_at
+            middle = 0.5 * (motion.max(axis=0) + motion.min(axis=0))
+            if np.max(np.linalg.norm(motion - middle, axis=1)) <= 0.5 * self.margin:
+                return
+        self.search(u)
+
+    def coupled_nodes(self) -> list[np.ndarray]:
+        """Per direction, the candidate pairs as (P, 4) node numbers (slave, triangle): what
+        the Jacobian's sparsity pattern must hold."""
+        out = []
+        for slaves, triangles in self.candidates:
+            out.append(np.column_stack([slaves, self.nodes.triangles[triangles]]))
+        return out
+
+    # --- forces -----------------------------------------------------------------------------
+    def evaluate(self, u: np.ndarray, u_committed: np.ndarray) -> PairForces:
+        """The forces of every active pair at displacements u (N, 3), slips measured from
+        u_committed (N, 3), and their exact derivatives."""
+        self._ensure_candidates(u)
+        x = self.nodes.reference + u
+        parts = []
+        for i, direction in enumerate(self.directions):
+            parts.append(self._direction_forces(i, direction, x, u - u_committed))
+        parts.append(PairForces(np.zeros((0, 4), dtype=np.int64), np.zeros((0, 4, 3)),
+                                np.zeros((0, 4, 3, 4, 3))))
+        nodes = np.concatenate([p.nodes for p in parts])
+        self.counts["pairs"] = len(nodes)
+        return PairForces(nodes, np.concatenate([p.force for p in parts]),
+                          np.concatenate([p.jacobian for p in parts]))
+
+    def _closest(self, i, x):
+        """Per slave with candidates, its closest candidate triangle: (slaves, triangles)."""
+        slaves, triangles = self.candidates[i]
+        if not len(slaves):
+            return slaves, triangles
+        corners = x[self.nodes.triangles[triangles]]
+        _, _, distance = closest_point_on_triangles(x[slaves], corners[:, 0], corners[:, 1],
+                                                    corners[:, 2])
+        order = np.lexsort((distance, slaves))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = slaves[order][1:] != slaves[order][:-1]
+        chosen = order[first]
+        return slaves[chosen], triangles[chosen]
+
+    def _direction_forces(self, i, direction, x, du) -> PairForces:
+        slaves, triangles = self._closest(i, x)
+        nodes = np.column_stack([slaves, self.nodes.triangles[triangles]]).astype(np.int64)
+        memory = self.memory[i][slaves]
+        geometry = _pair_geometry(x[nodes], du[nodes], direction.sign, direction.offset, memory)
+        g, dg, n, dn, lam, dlam, ds, dds = geometry
+        ramp, d_ramp = _edge_ramp(lam, dlam)
+        active = ramp > 0.0
+        p, stiffness = normal_pressure(g, self.penalty, self.smoothing)
+        # the slip rate v = |(I - n n)(ds - m)| / dt and its derivative
+        increment = ds - memory
+        tangential = increment - np.sum(n * increment, axis=1)[:, None] * n
+        d_increment = dds
+        d_tangential = (d_increment
+                        - n[:, :, None] * (np.einsum("pi,pik->pk", n, d_increment)
+                                           + np.einsum("pi,pik->pk", increment, dn))[:, None, :]
+                        - np.sum(n * increment, axis=1)[:, None, None] * dn)
+        if direction.law.rate_dependent:
+            if self.step_duration is None:
+                raise ValueError("a rate-dependent friction law needs set_step_duration(dt)")
+            length = np.linalg.norm(tangential, axis=1)
+            unit = tangential / np.where(length > 0.0, length, 1.0)[:, None]
+            rate = length / self.step_duration
+            d_rate = np.einsum("pi,pik->pk", unit, d_tangential) / self.step_duration
+        else:
+            rate, d_rate = np.zeros(len(g)), np.zeros_like(dg)
+        mu, dmu_dp, dmu_dv = direction.law(p, rate)
+        dmu = dmu_dp[:, None] * (-stiffness[:, None] * dg) + dmu_dv[:, None] * d_rate
+        response = traction(g, n, ds, self.penalty, mu, self.regularisation,
+                            touching_is_active=True, smoothing=self.smoothing)
+        dt_dg, dt_dn, dt_dds, dt_dmu = _law_partials(response, n, ds, mu)
+        t = response.traction
+        dt = (dt_dg[:, :, None] * dg[:, None, :] + np.einsum("pij,pjk->pik", dt_dn, dn)
+              + np.einsum("pij,pjk->pik", dt_dds, dds) + dt_dmu[:, :, None] * dmu[:, None, :])
+        half_area = 0.5 * self.nodes.area[slaves]
+        weight, d_weight = half_area * ramp, half_area[:, None] * d_ramp
+        share = np.column_stack([-np.ones(len(slaves)), lam])          # slave: +1, master: -l
+        force = -(weight[:, None, None] * share[:, :, None] * t[:, None, :])
+        dshare = np.concatenate([np.zeros((len(slaves), 1, 12)), dlam], axis=1)
+        jacobian = -(weight[:, None, None, None]
+                     * (share[:, :, None, None] * dt[:, None, :, :]
+                        + t[:, None, :, None] * dshare[:, :, None, :])
+                     + (share[:, :, None] * t[:, None, :])[:, :, :, None]
+                     * d_weight[:, None, None, :])
+        self._trial[i] = {"slaves": slaves, "slip": ds, "normal": n, "gap": g,
+                          "pressure": np.where(active, response.pressure, 0.0),
+                          "weight": weight, "state": np.where(active, response.state, SEPARATED),
+                          "traction": t, "slip_increment": tangential}
+        keep = active & ((response.pressure > 0.0) | (np.abs(dt).max(axis=(1, 2)) > 0.0))
+        return PairForces(nodes[keep], force[keep],
+                          jacobian[keep].reshape(-1, 4, 3, 4, 3))
+
+    def commit(self) -> None:
+        """The converged step becomes the reference of the next: each slave keeps the part of
+        its slip within the stick zone (:func:`drape.forming.contact.elastic_slip`)."""
+        for i, trial in enumerate(self._trial):
+            memory = np.zeros_like(self.memory[i])
+            if trial is not None:
+                # the step's tangential relative motion, and the work friction did against it
+                increment = trial["slip_increment"]
+                normal = trial["normal"]
+                t = trial["traction"]
+                friction = t - np.sum(t * normal, axis=1)[:, None] * normal
+                self.friction_work[self.directions[i].interface] -= float(np.sum(
+                    trial["weight"] * np.sum(friction * increment, axis=1)))
+                self.accumulated_slip[i][trial["slaves"]] += np.linalg.norm(increment, axis=1)
+                memory[trial["slaves"]] = elastic_slip(trial["slip"], trial["normal"],
+                                                       trial["pressure"], self.regularisation)
+            self.memory[i] = memory
+
+    def state(self) -> dict:
+        """Friction's memory (the elastic slip per direction, (N, 3) each) for a checkpoint."""
+        return {f"elastic_slip_{i}": memory for i, memory in enumerate(self.memory)}
+
+    def load_state(self, state: dict) -> None:
+        """Take back what :meth:`state` returned (resume from a checkpoint)."""
+        self.memory = [np.array(state[f"elastic_slip_{i}"], copy=True)
+                       for i in range(len(self.directions))]
+
+    def states(self) -> np.ndarray:
+        """Of the last evaluation, the state of every pair (0 separated, 1 stick, 2 slip)."""
+        return self.last("state").astype(int)
+
+    def last(self, name: str) -> np.ndarray:
+        """Of the last evaluation, one quantity of every pair this rank evaluated, all
+        directions: "slaves", "gap" (mm), "pressure" (N/mm²), "weight" (the reference area the
+        pair carries, mm²), "state", "slip" and "normal" ((P, 3))."""
+        parts = [trial[name] for trial in self._trial if trial is not None]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def report(self) -> dict:
+        """Of the last evaluation, per interface (this rank's slave nodes): the largest
+        penetration (mm, >= 0), the nodes in contact, the area they carry (mm², half per
+        direction) and the normal force (N); the friction work up to the last commit (N mm)."""
+        out = {}
+        for direction, trial in zip(self.directions, self._trial):
+            entry = out.setdefault(direction.interface, {
+                "max_penetration": 0.0, "nodes_in_contact": 0, "contact_area": 0.0,
+                "normal_force": 0.0,
+                "friction_work": float(self.friction_work[direction.interface])})
+            if trial is None:
+                continue
+            carrying = trial["pressure"] > 0.0
+            entry["contact_area"] += float(np.sum(trial["weight"][carrying]))
+            entry["normal_force"] += float(np.sum(trial["weight"] * trial["pressure"]))
+            touching = (trial["weight"] > 0.0) & (trial["gap"] < 0.0)
+            if touching.any():
+                entry["max_penetration"] = max(entry["max_penetration"],
+                                               float(-trial["gap"][touching].min()))
+            entry["nodes_in_contact"] += int(np.count_nonzero(trial["pressure"] > 0.0))
+        return out
+
+
+def _edge_ramp(lam, dlam):
+    """The weight of each pair (P,) by how far its projection lies outside the triangle (the
+    smallest barycentric coordinate l: 1 for l >= 0, 0 for l <= -EDGE_RAMP, 3 s^2 - 2 s^3 with
+    s = 1 + l / EDGE_RAMP between) and its derivative (P, 12)."""
+    smallest = np.argmin(lam, axis=1)
+    rows = np.arange(len(lam))
+    s = np.clip(1.0 + lam[rows, smallest] / EDGE_RAMP, 0.0, 1.0)
+    ramp = s * s * (3.0 - 2.0 * s)
+    slope = 6.0 * s * (1.0 - s) / EDGE_RAMP
+    return ramp, slope[:, None] * dlam[rows, smallest]
+
+
+# --- forward-mode derivatives of a pair's geometry ----------------------------------------------
+
+def _selector(node: int) -> np.ndarray:
+    """d x_node / d (x_s, x_a, x_b, x_c): (3, 12)."""
+    out = np.zeros((3, 12))
+    out[:, 3 * node: 3 * node + 3] = np.eye(3)
+    return out
+
+
+_E = [_selector(k) for k in range(4)]
+
+
+def _cross(a, da, b, db):
+    """a x b and its derivative, for a, b (P, 3) with derivatives (P, 3, 12)."""
+    return (np.cross(a, b),
+            np.cross(da, b[:, :, None], axis=1) + np.cross(a[:, :, None], db, axis=1))
+
+
+def _dot(a, da, b, db):
+    return (np.sum(a * b, axis=1),
+            np.einsum("pik,pi->pk", da, b) + np.einsum("pi,pik->pk", a, db))
+
+
+def _pair_geometry(x, du, sign, offset, memory):
+    """For P pairs with node positions x (P, 4, 3) (slave, a, b, c) and displacement increments
+    du (P, 4, 3): gap g (P,), normal n (P, 3), barycentric coordinates lambda (P, 3) and slip ds
+    (P, 3), each followed by its derivative with respect to the 12 coordinates (P, ..., 12)."""
+    count = len(x)
+    xs, xa, xb, xc = (x[:, k] for k in range(4))
+    const = lambda e: np.broadcast_to(e, (count, 3, 12))               # noqa: E731
+    e1, de1 = xb - xa, const(_E[2] - _E[1])
+    e2, de2 = xc - xa, const(_E[3] - _E[1])
+    r, dr = xs - xa, const(_E[0] - _E[1])
+    N, dN = _cross(e1, de1, e2, de2)
+    NN, dNN = _dot(N, dN, N, dN)
+    length = np.sqrt(NN)
+    n_up = N / length[:, None]
+    dn_up = (dN - n_up[:, :, None] * np.einsum("pi,pik->pk", n_up, dN)[:, None, :]) \
+        / length[:, None, None]
+    n, dn = sign * n_up, sign * dn_up
+    d, dd = _dot(r, dr, n, dn)
+    g, dg = d - offset, dd
+    rb, drb = _cross(r, dr, e2, de2)
+    qb, dqb = _dot(rb, drb, N, dN)
+    rc, drc = _cross(e1, de1, r, dr)
+    qc, dqc = _dot(rc, drc, N, dN)
+    lb, lc = qb / NN, qc / NN
+    dlb = (dqb - lb[:, None] * dNN) / NN[:, None]
+    dlc = (dqc - lc[:, None] * dNN) / NN[:, None]
+    lam = np.column_stack([1.0 - lb - lc, lb, lc])
+    dlam = np.stack([-dlb - dlc, dlb, dlc], axis=1)
+    ds = du[:, 0] - np.einsum("pk,pki->pi", lam, du[:, 1:]) + memory
+    dds = (const(_E[0]) - np.einsum("pk,kij->pij", lam, np.stack(_E[1:]))
+           - np.einsum("pki,pkj->pij", du[:, 1:], dlam))
+    return g, dg, n, dn, lam, dlam, ds, dds
+
+
+def _law_partials(response, n, ds, mu):
+    """The partial derivatives of the law's traction t(g, n, ds, mu) read off its tangent
+    dt/du = dt/dg n^T + dt/dds (contact.traction, n fixed there):
+
+        dt/dg  = tangent n,     dt/dds = tangent (I - n n),
+        dt/dn  = p I - (n.ds) dt/dds + c n ((n.ds) n + ds)^T,   c = mu p / (delta or s),
+        dt/dmu = (t - p n) / mu,
+
+    c from dt/dds applied to a tangent direction w across the slip: dt/dds w = -c w."""
+    K, t, p = response.tangent, response.traction, response.pressure
+    eye = np.eye(3)
+    projector = eye - n[:, :, None] * n[:, None, :]
+    dt_dg = np.einsum("pij,pj->pi", K, n)
+    dt_dds = np.einsum("pij,pjk->pik", K, projector)
+    tangential = np.einsum("pij,pj->pi", projector, ds)
+    across = np.cross(n, tangential)
+    # no slip direction yet: any tangent direction (the axis least aligned with n crossed in)
+    axis = np.eye(3)[np.argmin(np.abs(n), axis=1)]
+    fallback = np.cross(n, axis)
+    small = np.linalg.norm(across, axis=1) < 1e-200
+    across = np.where(small[:, None], fallback, across)
+    across /= np.linalg.norm(across, axis=1)[:, None]
+    c = -np.einsum("pi,pij,pj->p", across, dt_dds, across)
+    normal_slip = np.sum(n * ds, axis=1)
+    dt_dn = (p[:, None, None] * eye - normal_slip[:, None, None] * dt_dds
+             + c[:, None, None] * n[:, :, None]
+             * (normal_slip[:, None] * n + ds)[:, None, :])
+    mu = np.broadcast_to(mu, p.shape)
+    tangential_traction = t - p[:, None] * n
+    dt_dmu = np.where(mu[:, None] > 0.0,
+                      tangential_traction / np.where(mu > 0.0, mu, 1.0)[:, None], 0.0)
+    return dt_dg, dt_dn, dt_dds, dt_dmu
