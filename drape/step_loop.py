@@ -136,8 +136,9 @@ class StepLoop:
 
     def _open_outputs(self, resume: bool) -> None:
         """The checkpoints (and the state to resume from), the disk's watch and the writer."""
-        from drape.io.checkpoint import Checkpoints, rewind_outputs
+        from drape.io.checkpoint import Checkpoints
         from drape.io.disk import Disk, estimate
+        from drape.io.rewind import rewind_outputs
         from drape.io.writer import FIELDS_FILE, ResultsWriter
         config, folder, comm = self.config, self.folder, self.comm
         self.checkpoints = Checkpoints(folder, self.problem, self.job,
