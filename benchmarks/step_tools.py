@@ -104,7 +104,7 @@ def main():
                 continue
             margin = args.margin
             if margin is None:
-                from drape.forming.press import TOOL_LIST_MARGIN
+                from drape.forming.tool_contact import TOOL_LIST_MARGIN
                 margin = TOOL_LIST_MARGIN
             results[name] = run(path, tmp / name, overrides, margin)
             print(name, results[name], flush=True)
