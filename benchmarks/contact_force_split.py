@@ -32,13 +32,13 @@ def main(argv=None) -> int:
 
     rows, parts = [], {}
 
-    def split_forces(row, problem):
+    def split_forces(record, problem):
         """The tools' contact forces of the converged step, split into normal and friction."""
         forming = parts["run"].forming
         contact, comm = forming.tool_contact, forming.comm
         xy = contact.reference_points[:, :2] + contact._u[:, :2]
         radial = xy / np.maximum(np.linalg.norm(xy, axis=1), 1e-12)[:, None]
-        split = {"stroke": row["stroke"]}
+        split = {"stroke": record.columns["stroke"]}
         for name, (_, response) in contact.last.items():
             normal = response.pressure[:, None] * contact._trial_slip[name][1]
             for part, traction in (("N", normal), ("F", response.traction - normal)):

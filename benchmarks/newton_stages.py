@@ -68,8 +68,8 @@ def main(argv=None) -> int:
     class Reached(Exception):
         """The stroke given by --until is reached."""
 
-    def stop_at_until(row, problem):
-        if row["stroke"] >= args.until:
+    def stop_at_until(record, problem):
+        if record.columns["stroke"] >= args.until:
             raise Reached
 
     start = time.perf_counter()

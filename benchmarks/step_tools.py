@@ -73,7 +73,7 @@ def run(config, folder, overrides, margin):
     searched = sum(getattr(s, "searched", 0)
                    for s in clock["forming"].tool_contact.surfaces.values())
     return {"wall (s)": seconds, "queries (s)": clock["query"], "searched": searched,
-            "steps": rows[-1]["step"], "iterations": report["newton_iterations"],
+            "steps": rows[-1].step, "iterations": report["newton_iterations"],
             "peak shear (deg)": report["max_shear_angle_deg"],
             "draw-in mid-side (mm)": report["draw_in_mm"]["mid_right"],
             "draw-in other mid-side (mm)": report["draw_in_mm"]["mid_top"],

@@ -112,12 +112,14 @@ def step_progress(job, *, enabled: bool, stream=None):
         progress.interactive = False
     histories = list(job.config.history)
 
-    def on_step(row, problem=None):
-        notes = [f"{name}={row[name]:.4g}" for name in histories if name in row]
-        notes.append(f"max|gamma|={row['max_shear_angle_deg']:.3f} deg")
-        if row.get("cutbacks"):
-            notes.append(f"{row['cutbacks']} cutback(s)")
-        progress.step(row["step"], row["t"], row["newton_iterations"], row["dt"],
+    def on_step(record, problem=None):
+        """A converged step's line: its drape.step_record.StepRecord."""
+        notes = [f"{name}={record.histories[name]:.4g}" for name in histories
+                 if name in record.histories]
+        notes.append(f"max|gamma|={record.max_shear_angle_deg:.3f} deg")
+        if record.cutbacks:
+            notes.append(f"{record.cutbacks} cutback(s)")
+        progress.step(record.step, record.t, record.newton_iterations, record.dt,
                       note="  ".join(notes))
 
     progress.on_step = on_step
@@ -132,9 +134,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
     Hooks, each optional and called on every rank: on_start(RunParts) once the run is set up;
     on_attempt(t) before each Newton attempt at load factor t; on_solve(solver, result) after
-    each Newton solve (a holder's re-solves too); on_step(step_row, problem) after each
-    converged step is written (`drape run` shows its progress from there). log(text) gets the
-    other messages (start, warnings, cutbacks).
+    each Newton solve (a holder's re-solves too); on_step(record, problem) after each
+    converged step is written, with its drape.step_record.StepRecord (`drape run` shows its
+    progress from there). log(text) gets the other messages (start, warnings, cutbacks).
     Raises RunFailed (results so far written) when a step does not converge, Interrupted on
     SIGTERM/SIGINT (after the checkpoint), InputError if the results folder holds results and
     neither ``overwrite`` (start over) nor ``resume`` (continue from its checkpoint) is given.

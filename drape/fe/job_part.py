@@ -1,11 +1,11 @@
 """What a kind of job adds to the step loop of ``drape run``: the forming process, the picture
 frame's frame force, the bias-extension report.
 
-The loop (:func:`drape.run.run_job`) knows only this interface: it hands every part the problem
-and the boundary motion once, moves each part's load with its own, asks each for a first guess
-before Newton and for a re-solve after it, lets each add its columns to a converged step's row,
-and asks each for its files at the end. A patch test is a job with no parts. The defaults do
-nothing, so a part overrides only what it needs.
+The loop (:class:`drape.step_loop.StepLoop`) knows only this interface: it hands every part
+the problem and the boundary motion once, moves each part's load with its own, asks each for a
+first guess before Newton and for a re-solve after it, lets each add its columns to a
+converged step's record, and asks each for its files at the end. A patch test is a job with no
+parts. The defaults do nothing, so a part overrides only what it needs.
 """
 
 from __future__ import annotations
@@ -41,10 +41,12 @@ class JobPart:
         this part needs (e.g. until the holder's force is met); returns the result to keep."""
         return result
 
-    def measure(self, row: dict, rows: list, force) -> None:
-        """Add this part's columns to the converged step's ``row`` (``rows`` are the steps
-        before; ``force`` the assembled internal force vector)."""
+    def measure(self, record, records: list, force) -> None:
+        """Add this part's columns to the converged step's ``record`` (a
+        drape.step_record.StepRecord: its ``columns``, or a loop field the part adds to, as
+        a forming job's punch work to ``external_work``); ``records`` are the steps before,
+        ``force`` the assembled internal force vector."""
 
-    def finish(self, folder: Path, rows: list, seconds: float) -> None:
-        """At the end of a run (converged or not, rows of at least two steps): this part's
+    def finish(self, folder: Path, records: list, seconds: float) -> None:
+        """At the end of a run (converged or not, records of at least two steps): this part's
         files in ``folder``."""

@@ -185,19 +185,21 @@ class Forming(JobPart):
         """The holder's force within its tolerance: :meth:`hold_force`."""
         return self.hold_force(t, solve, result)
 
-    def measure(self, row: dict, rows: list, force) -> None:
+    def measure(self, record, records: list, force) -> None:
         """A converged step's forming columns: the tools' forces and contact (:meth:`tool_row`),
         the holder's correction for the next step, the punch's work (trapezoidal in the stroke),
-        which is the forming job's external work, and the shares of it."""
-        row.update(self.tool_row(row["t"], converged=row["step"] > 0))
-        self.control_holder(row)
-        before = rows[-1] if rows else {"punch_work": 0.0, "punch_force": 0.0, "stroke": 0.0}
-        row["punch_work"] = before["punch_work"] + 0.5 * (
-            before["punch_force"] + row["punch_force"]) * (row["stroke"] - before["stroke"])
-        row["external_work"] += row["punch_work"]
-        work = abs(row["external_work"])
-        row["regularisation_share"] = row["regularisation_work"] / work if work != 0.0 else 0.0
-        row["bending_share"] = row["bending_energy"] / work if work != 0.0 else 0.0
+        which the record's external work includes (and so its regularisation share), and the
+        bending energy's share of it."""
+        columns = record.columns
+        columns.update(self.tool_row(record.t, converged=record.step > 0))
+        self.control_holder(record)
+        before = (records[-1].columns if records
+                  else {"punch_work": 0.0, "punch_force": 0.0, "stroke": 0.0})
+        columns["punch_work"] = before["punch_work"] + 0.5 * (
+            before["punch_force"] + columns["punch_force"]) * (columns["stroke"] - before["stroke"])
+        record.external_work += columns["punch_work"]
+        work = abs(record.external_work)
+        columns["bending_share"] = record.bending_energy / work if work != 0.0 else 0.0
 
     def tool_row(self, t: float, converged: bool = True) -> dict:
         """Forces (N), penetration (mm), contact areas (mm^2) at the converged state (collective).
@@ -281,18 +283,19 @@ class Forming(JobPart):
                 self.problem.evaluate()     # the law's and the tools' state there again
         return dataclasses.replace(result, iterations=iterations, seconds=seconds)
 
-    def control_holder(self, row: dict) -> None:
+    def control_holder(self, record) -> None:
         """After a converged step (not the initial state): correct the holder's height for the
         next step from the force it measured (:class:`HolderControl`)."""
-        if self.holder is not None and row["t"] > 0:
-            self.holder.update(row["holder_force"])
-            target, measured = self.process.holder_force, row["holder_force"]
+        if self.holder is not None and record.t > 0:
+            measured = record.columns["holder_force"]
+            self.holder.update(measured)
+            target = self.process.holder_force
             if abs(measured - target) > HOLDER_WARNING * target:
-                self.holder_warnings.append((row["step"], measured))
-                self.say(f"drape run: warning: step {row['step']} (stroke {row['stroke']:.4g} "
-                         f"mm): the holder force is {measured:.5g} N, "
-                         f"{100 * (measured / target - 1):+.1f} % off its target "
-                         f"{target:g} N (process.holder_force)")
+                self.holder_warnings.append((record.step, measured))
+                self.say(f"drape run: warning: step {record.step} (stroke "
+                         f"{record.columns['stroke']:.4g} mm): the holder force is "
+                         f"{measured:.5g} N, {100 * (measured / target - 1):+.1f} % off its "
+                         f"target {target:g} N (process.holder_force)")
 
     def contact_pressure(self) -> np.ndarray:
         """Contact pressure of all tools (N/mm^2, holder included) averaged over each local cell."""
@@ -303,11 +306,10 @@ class Forming(JobPart):
         return (p.reshape(-1, self.n_extra) * A).sum(axis=1) / A.sum(axis=1)
 
     # --- at the end -------------------------------------------------------------------------------
-    def _holder_summary(self, rows: list) -> dict:
+    def _holder_summary(self, measured: list) -> dict:
         """summary.json's holder entries: how it was driven, the force it was driven to (force
-        control only) and the force measured over the converged steps (never the config's
+        control only) and the ``measured`` force over the converged steps (never the config's
         force where it was not applied)."""
-        measured = [r["holder_force"] for r in rows[1:] if "holder_force" in r]
         mode = self.holder_mode if "holder" in self.tool_contact.surfaces else None
         entries = {"holder_control": mode or "none"}
         if mode == "force":
@@ -321,8 +323,40 @@ class Forming(JobPart):
             entries["holder_force_measured_N"] = [float(min(measured)), float(max(measured))]
         return entries
 
+    def _run_summary(self, records: list, seconds: float, measured: list) -> dict:
+        """summary.json's entries on the job and the run (rank 0): the tools, the stroke, the
+        punch force (N), the shear oscillation, the holder, the inertia, the steps."""
+        problem, process, last = self.problem, self.process, records[-1]
+        forces = [r.columns.get("punch_force", 0.0) for r in records]
+        return {
+            "title": self.title, "blank": describe_blank(self.config.blank),
+            "tools": self.kind,
+            "yarn_angle_deg": self.config.blank.yarn_angle,
+            "stroke_mm": last.columns.get("stroke", 0.0), "configured_stroke_mm": self.stroke,
+            "tools_full_stroke_mm": full_stroke(self.config),
+            "max_punch_force_N": float(max(forces)),
+            # cell-to-cell shear oscillation (drape/reports/oscillation.py, docs/blanks.md)
+            "shear_oscillation_deg": float(last.shear_oscillation_deg),
+            "max_shear_oscillation_deg": float(max(r.shear_oscillation_deg for r in records)),
+            "shear_oscillation_warning_deg": OSCILLATION_WARNING,
+            "punch_force_at_end_N": float(forces[-1]),
+            **self._holder_summary(measured),
+            # the blank's inertia: a dynamic run's forces depend on these (docs/forming.md)
+            "areal_density_kg_per_m2": process.areal_density,
+            "punch_speed_m_per_s": process.punch_speed,
+            "punch_ramp_mm": process.punch_ramp,
+            "max_penetration_mm": float(max(r.columns.get("max_penetration", 0.0)
+                                            for r in records)),
+            "penalty_N_per_mm3": self.penalty,
+            "regularisation_share": last.regularisation_share,
+            "steps": last.step,
+            "newton_iterations": int(sum(r.newton_iterations for r in records)),
+            "cutbacks": int(sum(r.cutbacks for r in records)),
+            "wall_time_s": seconds, "ranks": self.comm.size,
+            "cells": problem.mesh.topology.index_map(problem.mesh.topology.dim).size_global,
+        }
 
-    def finish(self, folder: Path, rows: list, seconds: float) -> dict:
+    def finish(self, folder: Path, records: list, seconds: float) -> dict:
         """force_stroke.csv/.png, shear maps, summary.json (collective; rank 0 writes)."""
         from drape.forming import reports
         problem = self.problem
@@ -330,7 +364,8 @@ class Forming(JobPart):
         cells = reports.gather_cells(problem)
         summary = reports.shear_summary(problem, locking, self.comm)
         summary.update(reports.draw_in(problem, self.config.blank, self.comm))
-        measured = [r["holder_force"] for r in rows[1:] if "holder_force" in r]
+        measured = [r.columns["holder_force"] for r in records[1:]
+                    if "holder_force" in r.columns]
         if measured:
             target = (f"its target {self.process.holder_force:g} N; "
                       f"{len(self.holder_warnings)} step(s) off it by more than "
@@ -339,36 +374,10 @@ class Forming(JobPart):
             self.say(f"drape run: holder force measured {min(measured):.5g} to "
                      f"{max(measured):.5g} N over the converged steps ({target})")
         if self.comm.rank == 0:
-            forces = [r.get("punch_force", 0.0) for r in rows]
-            summary.update({
-                "title": self.title, "blank": describe_blank(self.config.blank),
-                "tools": self.kind,
-                "yarn_angle_deg": self.config.blank.yarn_angle,
-                "stroke_mm": rows[-1].get("stroke", 0.0), "configured_stroke_mm": self.stroke,
-                "tools_full_stroke_mm": full_stroke(self.config),
-                "max_punch_force_N": float(max(forces)),
-                # cell-to-cell shear oscillation (drape/reports/oscillation.py, docs/blanks.md)
-                "shear_oscillation_deg": float(rows[-1].get("shear_oscillation_deg", 0.0)),
-                "max_shear_oscillation_deg": float(max(r.get("shear_oscillation_deg", 0.0)
-                                                       for r in rows)),
-                "shear_oscillation_warning_deg": OSCILLATION_WARNING,
-                "punch_force_at_end_N": float(forces[-1]),
-                **self._holder_summary(rows),
-                # the blank's inertia: a dynamic run's forces depend on these (docs/forming.md)
-                "areal_density_kg_per_m2": self.process.areal_density,
-                "punch_speed_m_per_s": self.process.punch_speed,
-                "punch_ramp_mm": self.process.punch_ramp,
-                "max_penetration_mm": float(max(r.get("max_penetration", 0.0) for r in rows)),
-                "penalty_N_per_mm3": self.penalty,
-                "regularisation_share": rows[-1].get("regularisation_share", 0.0),
-                "steps": rows[-1]["step"], "newton_iterations": int(sum(
-                    r.get("newton_iterations", 0) for r in rows)),
-                "cutbacks": int(sum(r.get("cutbacks", 0) for r in rows)),
-                "wall_time_s": seconds, "ranks": self.comm.size,
-                "cells": problem.mesh.topology.index_map(problem.mesh.topology.dim).size_global,
-            })
+            summary.update(self._run_summary(records, seconds, measured))
             summary.update(reports.strip_summary(cells, self.config.blank.yarn_angle))
             folder = Path(folder)
+            rows = [record.row() for record in records]     # as in steps.csv
             reports.write_force_stroke(folder, rows)
             reports.plot_force_stroke(folder, rows, self.title)
             reports.plot_shear_maps(folder, cells, locking, self.title)

@@ -7,7 +7,8 @@ point of the rank are matched to their points, other arrays are the same on ever
 committed and the previous displacement, the ledgers of
 external and regularisation work (with the prescribed forces and displacements their next
 increment starts from), the step number, load factor t, the step size the loop proposes next,
-the rows written so far, and the effective config and material it was made with.
+the step records so far (as steps.csv's rows, :meth:`drape.step_record.StepRecord.row`), and
+the effective config and material it was made with.
 
 The values are gathered to rank 0 into one file, each node's and cell's under a number that
 does not depend on the partition (:class:`drape.io.layout.Layout`: gmsh's node index,
@@ -70,11 +71,13 @@ def differences(saved: dict, now: dict) -> list[str]:
 
 
 class Checkpoints:
-    """Writes and reads the checkpoint of a run. ``rows`` and ``ledger`` are
-    run_job's own (mutable) records: saved as they are, filled in place on resume."""
+    """Writes and reads the checkpoint of a run. ``records`` (the step loop's
+    drape.step_record.StepRecord list) and ``ledger`` (its drape.step_record.WorkLedger) are
+    the loop's own: saved as they are, filled in place on resume; ``read_row`` turns a saved
+    steps.csv row back into a record."""
 
-    def __init__(self, folder, problem, job, every: int, rows: list,
-                 ledger: dict, prescribed_dofs=()):
+    def __init__(self, folder, problem, job, every: int, records: list, ledger,
+                 prescribed_dofs=(), read_row=None):
         self.folder = Path(folder)
         self.layout = Layout(problem)
         #: the owned, unrolled dofs of the ledger's arrays (PrescribedMotion.prescribed_dofs)
@@ -84,7 +87,8 @@ class Checkpoints:
         self.comm = problem.comm
         self.every = every
         self.signature = signature(job)
-        self.rows, self.ledger = rows, ledger
+        self.records, self.ledger = records, ledger
+        self.read_row = read_row
         self.last = None          # the last accepted solver Step
         self.saved_step = None    # number of the step in the file
         self.disk = None          # a drape.io.disk.Disk: the ranks agree on write errors
@@ -119,9 +123,9 @@ class Checkpoints:
             meta = {"version": VERSION, "ranks": self.comm.size, "step": step.number,
                     "t": step.t, "dt": step.next_dt,
                     "t_committed": p.t_committed, "t_previous": p.t_previous,
-                    "external_work": self.ledger["external"],
-                    "regularisation_work": self.ledger["regularisation"],
-                    "rows": self.rows,
+                    "external_work": self.ledger.external,
+                    "regularisation_work": self.ledger.regularisation,
+                    "rows": [record.row() for record in self.records],
                     "signature": self.signature}
             arrays = {"meta": np.array(json.dumps(meta, default=_json_default))}
             arrays.update(merge_ranks(parts))
@@ -185,8 +189,8 @@ class Checkpoints:
                 else:
                     global_values[f"contribution{i}.{key}"] = value
         dofs = np.asarray(self.prescribed_dofs, dtype=np.int64)
-        prescribed = {"f": _array(self.ledger["f"]), "g": _array(self.ledger["g"])}
-        if self.ledger["f"] is None:        # before the first step: no ledger yet
+        prescribed = {"f": _array(self.ledger.f), "g": _array(self.ledger.g)}
+        if self.ledger.f is None:        # before the first step: no ledger yet
             prescribed = {}
             dofs = dofs[:0]
         return {"nodes": (layout.node_key[:owned], nodes),
@@ -196,7 +200,7 @@ class Checkpoints:
 
     # --- reading ----------------------------------------------------------------------------
     def load(self):
-        """Collective: read the checkpoint into the problem, the ledger and the rows;
+        """Collective: read the checkpoint into the problem, the ledger and the records;
         returns the step, t and next step size to continue from. InputError (on every rank)
         if there is no usable checkpoint, the config, material or ranks differ, or the mesh
         does."""
@@ -214,9 +218,10 @@ class Checkpoints:
         ledger_f, ledger_g = self._prescribed(saved)
         p._evaluated_at = None
         p.evaluate()
-        self.ledger.update(external=meta["external_work"],
-                           regularisation=meta["regularisation_work"], f=ledger_f, g=ledger_g)
-        self.rows[:] = meta["rows"]
+        ledger = self.ledger
+        ledger.external, ledger.regularisation = meta["external_work"], meta["regularisation_work"]
+        ledger.f, ledger.g = ledger_f, ledger_g
+        self.records[:] = [self.read_row(row) for row in meta["rows"]]
         self.saved_step = meta["step"]
         return meta["step"], meta["t"], meta["dt"]
 

@@ -1,6 +1,6 @@
 """A results folder back to its checkpoint, for a resume (``drape run CONFIG --resume``).
 
-``steps.csv`` is rewritten from the checkpoint's rows; the XDMF time series (from its copy
+``steps.csv`` is rewritten from the checkpoint's records; the XDMF time series (from its copy
 ``checkpoint.xdmf``, taken with the checkpoint: dolfinx rewrites the XDMF text in place after
 every step, and a hard kill at that moment leaves it empty) loses the grids after the
 checkpoint's t, and its HDF5 file (from its copy ``checkpoint.h5``: a hard kill during a write
@@ -25,8 +25,9 @@ XDMF_COPY = "checkpoint.xdmf"
 H5_COPY = "checkpoint.h5"
 
 
-def rewind_outputs(folder, rows: list, t: float, comm) -> None:
-    """Collective (rank 0 works): steps.csv is rewritten with ``rows`` (the checkpoint's);
+def rewind_outputs(folder, records: list, t: float, comm) -> None:
+    """Collective (rank 0 works): steps.csv is rewritten with ``records`` (the checkpoint's
+    drape.step_record.StepRecord);
     fields.xdmf (from the checkpoint's copy) keeps the grids up to ``t``, its fields.h5 (the
     checkpoint's copy where there is one) becomes fields-<k>.h5 (the XDMF follows), and the
     XDMF copy becomes the rewound XDMF, so that a second resume from the same checkpoint finds
@@ -34,6 +35,7 @@ def rewind_outputs(folder, rows: list, t: float, comm) -> None:
     import csv
 
     from drape.io.writer import FIELDS_FILE, STEPS_FILE, csv_text
+    rows = [record.row() for record in records]
     folder = Path(folder)
     if comm.rank == 0:
         text = io.StringIO(newline="")

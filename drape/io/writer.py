@@ -69,12 +69,13 @@ class ResultsWriter:
         self.remember_fields()
 
     # --- per step ---------------------------------------------------------------------------------
-    def write_step(self, row: dict, t: float, *, last: bool = False) -> None:
-        """Append the CSV row; write the fields if due (every ``xdmf_every`` steps, and the last).
-        If the fields fail (a full disk), the row is cut off again."""
-        end = self._write_row(row)
+    def write_step(self, record, t: float, *, last: bool = False) -> None:
+        """Append the step's row (a drape.step_record.StepRecord) to steps.csv; write the fields
+        if due (every ``xdmf_every`` steps, and the last). If the fields fail (a full disk), the
+        row is cut off again."""
+        end = self._write_row(record.row())
         try:
-            due = last or row["step"] % self.xdmf_every == 0
+            due = last or record.step % self.xdmf_every == 0
             if self.xdmf and due:
                 self.write_fields(t)
             if self.snapshot == "every" or (self.snapshot == "final" and last):
