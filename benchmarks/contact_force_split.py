@@ -27,6 +27,7 @@ def main(argv=None) -> int:
     config, folder, *overrides = argv
     from mpi4py import MPI
 
+    from drape.forming.press import Forming
     from drape.job import load_job
     from drape.run import run_job
 
@@ -34,7 +35,7 @@ def main(argv=None) -> int:
 
     def split_forces(record, problem):
         """The tools' contact forces of the converged step, split into normal and friction."""
-        forming = parts["run"].forming
+        forming = parts["run"].part(Forming)
         contact, comm = forming.tool_contact, forming.comm
         xy = contact.reference_points[:, :2] + contact._u[:, :2]
         radial = xy / np.maximum(np.linalg.norm(xy, axis=1), 1e-12)[:, None]

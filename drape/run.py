@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from drape.step_loop import ALSO_REMOVED, RESULT_FILES, Hooks, RunParts, RunSummary, StepLoop
 
-__all__ = ["run_job", "RunParts", "RunSummary"]
+__all__ = ["run_job", "job_parts", "RunParts", "RunSummary"]
 
 HELP = "run a forming job from a TOML config (serial or under mpirun)"
 
@@ -126,6 +126,24 @@ def step_progress(job, *, enabled: bool, stream=None):
     return progress
 
 
+def job_parts(job, comm, log=None) -> list:
+    """The parts (drape.fe.job_part.JobPart) the job's config asks for, in the order they add
+    their columns: the forming process ``[process]``, the picture frame's report
+    ``[picture_frame]``, the bias extension's ``[bias_extension]``; none for a patch test."""
+    from drape.reports.bias_extension import BiasExtensionReport
+    from drape.reports.frame_force import FrameForceReport
+    config = job.config
+    parts = []
+    if config.process is not None:
+        from drape.forming.press import Forming
+        parts.append(Forming(job, comm, log=log))
+    if config.picture_frame is not None:
+        parts.append(FrameForceReport(config))
+    if config.bias_extension is not None:
+        parts.append(BiasExtensionReport(config, comm))
+    return parts
+
+
 def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, log=None,
             jit_params=None, resume=False, overwrite=False, on_start=None, on_attempt=None,
             on_solve=None) -> RunSummary:
@@ -151,8 +169,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     claim(folder, RESULT_FILES, comm=comm, overwrite=overwrite, resume=resume,
           also_remove=ALSO_REMOVED, can_resume=True)
     hooks = Hooks(on_start=on_start, on_attempt=on_attempt, on_solve=on_solve, on_step=on_step)
-    loop = StepLoop(job, comm, folder, petsc_options=petsc_options, log=log,
-                    jit_params=jit_params, resume=resume, hooks=hooks)
+    loop = StepLoop(job, job_parts(job, comm, log), comm, folder, petsc_options=petsc_options,
+                    log=log, jit_params=jit_params, resume=resume, hooks=hooks)
     return loop.run()
 
 

@@ -50,11 +50,9 @@ class RunParts:
     motion: object       #: drape.fe.constraints.PrescribedMotion
     parts: list          #: the job's parts (drape.fe.job_part.JobPart)
 
-    @property
-    def forming(self):
-        """The forming process (drape.forming.press.Forming), or None for a flat job."""
-        from drape.forming.press import Forming
-        return next((part for part in self.parts if isinstance(part, Forming)), None)
+    def part(self, kind: type):
+        """The job's part of class ``kind`` (e.g. drape.forming.press.Forming), or None."""
+        return next((part for part in self.parts if isinstance(part, kind)), None)
 
 
 @dataclasses.dataclass
@@ -68,27 +66,23 @@ class RunSummary:
     timings: dict       #: the membrane problem's timings (s) and counts (count_*)
 
 
-def job_parts(job, comm, log) -> list:
-    """The parts the job's config asks for, in the order they add their columns."""
-    from drape.reports.bias_extension import BiasExtensionReport
-    from drape.reports.frame_force import FrameForceReport
-    config = job.config
-    parts = []
-    if config.process is not None:
-        from drape.forming.press import Forming
-        parts.append(Forming(job, comm, log=log))
-    if config.picture_frame is not None:
-        parts.append(FrameForceReport(config))
-    if config.bias_extension is not None:
-        parts.append(BiasExtensionReport(config, comm))
-    return parts
+def bending_rigidity(bending, parts) -> float:
+    """The problem's bending rigidity B (N mm): the config's ``[bending]`` rigidity, else the
+    first part's default (a forming job's), else 0."""
+    if bending.rigidity is not None:
+        return bending.rigidity
+    defaults = [part.default_bending_rigidity for part in parts
+                if part.default_bending_rigidity is not None]
+    return defaults[0] if defaults else 0.0
 
 
 class StepLoop:
     """One run of a job in its results folder (collective over ``comm``)."""
 
-    def __init__(self, job, comm, folder: Path, *, petsc_options=None, log=None,
+    def __init__(self, job, parts: list, comm, folder: Path, *, petsc_options=None, log=None,
                  jit_params=None, resume=False, hooks: Hooks | None = None):
+        """``parts``: the job's drape.fe.job_part.JobPart objects (drape.run.job_parts), in
+        the order they add their columns."""
         from drape.errors import InputError
         from drape.fe.constraints import PrescribedMotion
         from drape.fe.loading import Loading
@@ -103,10 +97,10 @@ class StepLoop:
         self.hooks = hooks or Hooks()
         self.say = say = log or (lambda *_: None)
         config = self.config = job.config
-        forming = config.process is not None
-        self.parts = job_parts(job, comm, say)
+        self.parts = parts
         try:
-            blank_mesh = create_blank_mesh(comm, config.blank, config.mesh, centred=forming)
+            blank_mesh = create_blank_mesh(comm, config.blank, config.mesh,
+                                           centred=any(part.centres_blank for part in parts))
         except InputError as error:  # the mesher names the key; the job file is ours to add
             raise error.located(str(job.path)) from None
         say(f"drape run: {job.path}: {blank_mesh.description}, {comm.size} rank(s)")
@@ -115,8 +109,8 @@ class StepLoop:
         self.problem = problem = MembraneProblem(
             blank_mesh, NestedSurfaceLaw(job.params), config.blank.yarn_angle,
             config.regularisation.out_of_plane_damping, contributions=contributions or None,
-            jit_params=jit_params, bending_rigidity=config.bending.value(forming),
-            inertia=forming and config.process.areal_density > 0,
+            jit_params=jit_params, bending_rigidity=bending_rigidity(config.bending, parts),
+            inertia=any(part.inertial for part in parts),
             neutral_loading_band=config.solver.neutral_loading_band)
         self.motion = PrescribedMotion(problem.V, blank_mesh, self.loading)
         for part in self.parts:

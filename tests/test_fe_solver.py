@@ -69,6 +69,7 @@ def test_run_hooks_see_every_attempt_solve_and_step(comm, shared_tmp):
     on_attempt before each Newton attempt, on_solve after it (no holder: one solve each);
     on_step once per converged step, with its record (the summary's). A step cut back counts one
     attempt more than it has rows."""
+    from drape.forming.press import Forming
     calls = {"start": [], "attempt": [], "solve": [], "step": []}
     job = load_job(CONFIGS / "bias_extension.toml", overrides=SHORT)
     summary = run_job(
@@ -79,7 +80,7 @@ def test_run_hooks_see_every_attempt_solve_and_step(comm, shared_tmp):
         on_step=lambda record, problem: calls["step"].append(record))
     rows = summary.rows[1:]                      # step 0 is the unloaded state, not solved
     (run,) = calls["start"]
-    assert run.forming is None and run.problem is run.solver.problem
+    assert run.part(Forming) is None and run.problem is run.solver.problem
     assert calls["step"] == rows
     cutbacks = sum(row.cutbacks for row in rows)
     assert len(calls["attempt"]) == len(rows) + cutbacks == len(calls["solve"])

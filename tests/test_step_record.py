@@ -3,6 +3,7 @@ has always written them, rows read back to the same record (a checkpoint stores 
 written before the records were typed resumes), the work ledger's trapezoidal rule, and a
 step loop that knows nothing of forming."""
 
+import ast
 import csv
 import io
 from pathlib import Path
@@ -89,3 +90,38 @@ def test_the_ledger_adds_the_boundary_work_by_the_trapezoidal_rule():
         ledger.add_boundary_work(np.array([3.0 * g]), np.array([g]), One)
         assert ledger.external == work
 
+
+def _imports_and_attributes(path: Path):
+    tree = ast.parse(path.read_text())
+    modules = [node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)]
+    modules += [alias.name for node in ast.walk(tree) if isinstance(node, ast.Import)
+                for alias in node.names]
+    attributes = {node.attr for node in ast.walk(tree) if isinstance(node, ast.Attribute)}
+    return modules, attributes
+
+
+def test_the_step_loop_knows_no_forming():
+    """drape/step_loop.py imports nothing of drape.forming and reads no forming config key:
+    the forming job's facts (a centred blank, its default bending, inertia) come from its
+    part (drape.fe.job_part.JobPart)."""
+    modules, attributes = _imports_and_attributes(REPO / "drape" / "step_loop.py")
+    assert modules and not [m for m in modules if m.startswith("drape.forming")]
+    assert not attributes & {"process", "tools", "contact", "forming"}
+
+
+def test_the_bending_rigidity_is_the_configs_else_a_parts_default():
+    """A forming job's unset bending rigidity is its part's default (10 N mm, drape.job's
+    DEFAULT_FORMING_BENDING, as before the loop stopped asking the config whether the job
+    forms); a flat job's is 0; a set one is the config's."""
+    from types import SimpleNamespace
+
+    from drape.fe.job_part import JobPart
+    from drape.forming.press import Forming
+    from drape.job import DEFAULT_FORMING_BENDING, BendingConfig
+    from drape.step_loop import bending_rigidity
+    assert Forming.default_bending_rigidity == DEFAULT_FORMING_BENDING == 10.0
+    forming = SimpleNamespace(default_bending_rigidity=Forming.default_bending_rigidity)
+    assert bending_rigidity(BendingConfig(), [JobPart(), forming]) == 10.0
+    assert bending_rigidity(BendingConfig(), [JobPart()]) == 0.0
+    assert bending_rigidity(BendingConfig(), []) == 0.0
+    assert bending_rigidity(BendingConfig(rigidity=2.5), [forming]) == 2.5

@@ -35,7 +35,7 @@ from drape.forming.holder import (HOLDER_CORRECTIONS, HOLDER_LEAST_SLOPE, HOLDER
                                   HOLDER_TOLERANCE, HOLDER_WARNING, Bracket, HolderControl,
                                   holder_region, pinch_region)
 from drape.forming.tool_contact import ToolContact, tool_surfaces
-from drape.job import compose_title, describe_blank
+from drape.job import DEFAULT_FORMING_BENDING, compose_title, describe_blank
 from drape.reports.oscillation import OSCILLATION_WARNING
 
 # added to a quasi-static forming run's failure: where the steps shrink as the blank wrinkles
@@ -61,11 +61,18 @@ class Forming(JobPart):
     files = "force_stroke.csv/.png, the shear maps and summary.json"
     finish_on_root = False
 
+    #: a forming blank is meshed centred on the tools' axis
+    centres_blank = True
+    #: a membrane without bending has no stiffness against wrinkling (docs/forming.md)
+    default_bending_rigidity = DEFAULT_FORMING_BENDING
+
     def __init__(self, job, comm, log=None):
         self.job, self.comm = job, comm
         config = job.config
         self.config = config
         self.process = config.process
+        #: the problem carries the blank's inertia when the process gives it an areal density
+        self.inertial = self.process.areal_density > 0
         tools, dims = tool_set(config)
         self.kind = tools.kind
         self.stroke = stroke_of(config)
