@@ -188,55 +188,68 @@ def plot_force_stroke(folder: Path, rows: list, title: str) -> None:
     plt.close(fig)
 
 
+class _ShearColours:
+    """The shear maps' shared colouring: |shear angle| per cell (deg) on a turbo scale from 0
+    to above the locking angle, the locking angle as a contour and on the colour bar."""
+
+    def __init__(self, plt, shear, locking_angle: float):
+        self.plt, self.shear, self.locking = plt, np.abs(shear), locking_angle
+        self.cmap = plt.get_cmap("turbo")
+        self.norm = plt.Normalize(0.0, max(float(self.shear.max()), locking_angle * 1.05))
+
+    def contour(self, ax, polygons) -> None:
+        centres, shear, locking = polygons.mean(axis=1), self.shear, self.locking
+        if shear.max() > locking and len(centres) > 3:
+            ax.tricontour(centres[:, 0], centres[:, 1], shear, levels=[locking],
+                          colors="white", linewidths=1.6)
+            ax.tricontour(centres[:, 0], centres[:, 1], shear, levels=[locking],
+                          colors="black", linewidths=0.8, linestyles="--")
+
+    def colourbar(self, fig, ax, pad=0.05) -> None:
+        bar = fig.colorbar(self.plt.cm.ScalarMappable(norm=self.norm, cmap=self.cmap), ax=ax,
+                           shrink=0.85, pad=pad)
+        bar.set_label(f"|shear angle| (deg); black line: locking angle, {self.locking:g}")
+        bar.ax.axhline(self.locking, color="black", lw=1.5)
+
+
 def plot_shear_maps(folder: Path, cells: dict, locking_angle: float, title: str) -> None:
     """shear_formed.png (the formed part seen from above and in perspective) and shear_flat.png
     (the flat blank: where the fabric will shear), |shear angle| per cell, the locking angle
     drawn as a contour."""
-    from matplotlib.collections import PolyCollection
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
     plt = _pyplot()
-    shear = np.abs(cells["shear"])
-    top = max(float(shear.max()), locking_angle * 1.05)
-    cmap = plt.get_cmap("turbo")
-    norm = plt.Normalize(0.0, top)
+    colours = _ShearColours(plt, cells["shear"], locking_angle)
+    _plot_flat_shear(plt, Path(folder) / "shear_flat.png", cells["reference"], colours, title)
+    _plot_formed_shear(plt, Path(folder) / "shear_formed.png", cells["formed"], colours, title)
 
-    def contour(ax, polygons):
-        centres = polygons.mean(axis=1)
-        if shear.max() > locking_angle and len(centres) > 3:
-            ax.tricontour(centres[:, 0], centres[:, 1], shear, levels=[locking_angle],
-                          colors="white", linewidths=1.6)
-            ax.tricontour(centres[:, 0], centres[:, 1], shear, levels=[locking_angle],
-                          colors="black", linewidths=0.8, linestyles="--")
 
-    def colourbar(fig, ax, pad=0.05):
-        bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.85,
-                           pad=pad)
-        bar.set_label(f"|shear angle| (deg); black line: locking angle, {locking_angle:g}")
-        bar.ax.axhline(locking_angle, color="black", lw=1.5)
-
-    # the flat blank, in a figure as wide as the blank's aspect wants (a 470 x 235 mm blank
-    # in a square figure leaves its colour bar twice the plot's height)
-    extent = np.ptp(cells["reference"].reshape(-1, 2), axis=0)
+def _plot_flat_shear(plt, path: Path, reference, colours: _ShearColours, title: str) -> None:
+    """The shear map on the flat blank, in a figure as wide as the blank's aspect wants (a
+    470 x 235 mm blank in a square figure leaves its colour bar twice the plot's height)."""
+    from matplotlib.collections import PolyCollection
+    extent = np.ptp(reference.reshape(-1, 2), axis=0)
     aspect = float(extent[0] / extent[1]) if extent[1] > 0 else 1.0
     fig, ax = plt.subplots(figsize=(float(np.clip(2.5 + 4.5 * aspect, 7.0, 13.0)), 5.5),
                            dpi=120)
-    ax.add_collection(PolyCollection(cells["reference"], array=shear, cmap=cmap, norm=norm,
-                                     edgecolors="face", linewidths=0.2))
-    contour(ax, cells["reference"])
+    ax.add_collection(PolyCollection(reference, array=colours.shear, cmap=colours.cmap,
+                                     norm=colours.norm, edgecolors="face", linewidths=0.2))
+    colours.contour(ax, reference)
     ax.autoscale_view()
     ax.set_aspect("equal")
     ax.set_xlabel("X on the flat blank (mm)")
     ax.set_ylabel("Y on the flat blank (mm)")
     ax.set_title((title + "\n" if title else "") + "shear angle at the end, on the flat blank "
                  "(dashed: locking angle)", fontsize=10)
-    colourbar(fig, ax)
+    colours.colourbar(fig, ax)
     fig.tight_layout()
-    fig.savefig(Path(folder) / "shear_flat.png")
+    fig.savefig(path)
     plt.close(fig)
 
-    # the formed part: from above, and in perspective
-    formed = cells["formed"]
+
+def _plot_formed_shear(plt, path: Path, formed, colours: _ShearColours, title: str) -> None:
+    """The shear map on the formed part: from above, and in perspective."""
+    from matplotlib.collections import PolyCollection
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+    shear, cmap, norm = colours.shear, colours.cmap, colours.norm
     fig = plt.figure(figsize=(13.0, 6.0), dpi=120)
     ax = fig.add_subplot(1, 2, 1)
     order = np.argsort(formed[:, :, 2].mean(axis=1))         # higher cells drawn last
@@ -261,8 +274,8 @@ def plot_shear_maps(folder: Path, cells: dict, locking_angle: float, title: str)
     ax3.set_ylabel("y (mm)")
     ax3.set_zlabel("z (mm)")
     ax3.set_title("formed part", fontsize=10)
-    colourbar(fig, ax3, pad=0.12)      # room for the 3-d axes' z label
+    colours.colourbar(fig, ax3, pad=0.12)      # room for the 3-d axes' z label
     fig.suptitle((title + ": " if title else "") + "shear angle at the end of the stroke")
     fig.tight_layout()
-    fig.savefig(Path(folder) / "shear_formed.png")
+    fig.savefig(path)
     plt.close(fig)
