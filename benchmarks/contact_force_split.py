@@ -27,18 +27,19 @@ def main(argv=None) -> int:
     config, folder, *overrides = argv
     from mpi4py import MPI
 
+    from drape.forming.press import Forming
     from drape.job import load_job
     from drape.run import run_job
 
     rows, parts = [], {}
 
-    def split_forces(row, problem):
+    def split_forces(record, problem):
         """The tools' contact forces of the converged step, split into normal and friction."""
-        forming = parts["run"].forming
+        forming = parts["run"].part(Forming)
         contact, comm = forming.tool_contact, forming.comm
         xy = contact.reference_points[:, :2] + contact._u[:, :2]
         radial = xy / np.maximum(np.linalg.norm(xy, axis=1), 1e-12)[:, None]
-        split = {"stroke": row["stroke"]}
+        split = {"stroke": record.columns["stroke"]}
         for name, (_, response) in contact.last.items():
             normal = response.pressure[:, None] * contact._trial_slip[name][1]
             for part, traction in (("N", normal), ("F", response.traction - normal)):

@@ -41,6 +41,7 @@ def main(argv=None) -> int:
     threshold = float(threshold)
     from petsc4py import PETSc
 
+    from drape.forming.press import Forming
     from drape.job import load_job
     from drape.run import run_job
 
@@ -62,7 +63,7 @@ def main(argv=None) -> int:
         parts["done"] = True
         problem = newton.problem
         print(f"step from t = {problem.t_committed:.6g}: {result.iterations} Newton iterations")
-        report(newton, problem, parts["run"].forming, iterates, PETSc)
+        report(newton, problem, parts["run"].part(Forming), iterates, PETSc)
         problem.residual(newton.snes, newton.x, newton.b)   # leave the problem at the solution
 
     run_job(load_job(config, overrides=overrides), output=folder,

@@ -53,6 +53,7 @@ def main(argv=None) -> int:
 
     from mpi4py import MPI
 
+    from drape.forming.press import Forming
     from drape.job import load_job
     from drape.run import run_job
 
@@ -60,7 +61,7 @@ def main(argv=None) -> int:
 
     def recording(newton, result):
         records.append(dict(
-            stroke=parts["run"].forming.stroke * float(newton.problem.t_committed),
+            stroke=parts["run"].part(Forming).stroke * float(newton.problem.t_committed),
             converged=result.converged, iterations=result.iterations, reason=result.reason,
             seconds=result.seconds,
             history=[float(v) for v in newton.snes.getConvergenceHistory()[0]]))
@@ -68,8 +69,8 @@ def main(argv=None) -> int:
     class Reached(Exception):
         """The stroke given by --until is reached."""
 
-    def stop_at_until(row, problem):
-        if row["stroke"] >= args.until:
+    def stop_at_until(record, problem):
+        if record.columns["stroke"] >= args.until:
             raise Reached
 
     start = time.perf_counter()

@@ -55,12 +55,12 @@ def measure(cells: float, steps: int, output: str) -> None:
     class Done(Exception):
         pass
 
-    def on_step(row, problem):
-        snes_time[0] += row["seconds"]
+    def on_step(record, problem):
+        snes_time[0] += record.seconds
         description["cells"] = problem.mesh.topology.index_map(2).size_global
         description["dofs"] = problem.V.dofmap.index_map.size_global * 3
         description["points"] = comm.allreduce(problem.response.tau.size)
-        if row["step"] >= stop["after"]:
+        if record.step >= stop["after"]:
             description["timings"] = dict(problem.timings)
             description["counts"] = dict(problem.counts)
             raise Done

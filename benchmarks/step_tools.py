@@ -73,7 +73,7 @@ def run(config, folder, overrides, margin):
     searched = sum(getattr(s, "searched", 0)
                    for s in clock["forming"].tool_contact.surfaces.values())
     return {"wall (s)": seconds, "queries (s)": clock["query"], "searched": searched,
-            "steps": rows[-1]["step"], "iterations": report["newton_iterations"],
+            "steps": rows[-1].step, "iterations": report["newton_iterations"],
             "peak shear (deg)": report["max_shear_angle_deg"],
             "draw-in mid-side (mm)": report["draw_in_mm"]["mid_right"],
             "draw-in other mid-side (mm)": report["draw_in_mm"]["mid_top"],
@@ -104,7 +104,7 @@ def main():
                 continue
             margin = args.margin
             if margin is None:
-                from drape.forming.press import TOOL_LIST_MARGIN
+                from drape.forming.tool_contact import TOOL_LIST_MARGIN
                 margin = TOOL_LIST_MARGIN
             results[name] = run(path, tmp / name, overrides, margin)
             print(name, results[name], flush=True)

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from drape.step_loop import ALSO_REMOVED, RESULT_FILES, Hooks, RunParts, RunSummary, StepLoop
 
-__all__ = ["run_job", "RunParts", "RunSummary"]
+__all__ = ["run_job", "job_parts", "RunParts", "RunSummary"]
 
 HELP = "run a forming job from a TOML config (serial or under mpirun)"
 
@@ -112,16 +112,36 @@ def step_progress(job, *, enabled: bool, stream=None):
         progress.interactive = False
     histories = list(job.config.history)
 
-    def on_step(row, problem=None):
-        notes = [f"{name}={row[name]:.4g}" for name in histories if name in row]
-        notes.append(f"max|gamma|={row['max_shear_angle_deg']:.3f} deg")
-        if row.get("cutbacks"):
-            notes.append(f"{row['cutbacks']} cutback(s)")
-        progress.step(row["step"], row["t"], row["newton_iterations"], row["dt"],
+    def on_step(record, problem=None):
+        """A converged step's line: its drape.step_record.StepRecord."""
+        notes = [f"{name}={record.histories[name]:.4g}" for name in histories
+                 if name in record.histories]
+        notes.append(f"max|gamma|={record.max_shear_angle_deg:.3f} deg")
+        if record.cutbacks:
+            notes.append(f"{record.cutbacks} cutback(s)")
+        progress.step(record.step, record.t, record.newton_iterations, record.dt,
                       note="  ".join(notes))
 
     progress.on_step = on_step
     return progress
+
+
+def job_parts(job, comm, log=None) -> list:
+    """The parts (drape.fe.job_part.JobPart) the job's config asks for, in the order they add
+    their columns: the forming process ``[process]``, the picture frame's report
+    ``[picture_frame]``, the bias extension's ``[bias_extension]``; none for a patch test."""
+    from drape.reports.bias_extension import BiasExtensionReport
+    from drape.reports.frame_force import FrameForceReport
+    config = job.config
+    parts = []
+    if config.process is not None:
+        from drape.forming.press import Forming
+        parts.append(Forming(job, comm, log=log))
+    if config.picture_frame is not None:
+        parts.append(FrameForceReport(config))
+    if config.bias_extension is not None:
+        parts.append(BiasExtensionReport(config, comm))
+    return parts
 
 
 def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, log=None,
@@ -132,9 +152,9 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
 
     Hooks, each optional and called on every rank: on_start(RunParts) once the run is set up;
     on_attempt(t) before each Newton attempt at load factor t; on_solve(solver, result) after
-    each Newton solve (a holder's re-solves too); on_step(step_row, problem) after each
-    converged step is written (`drape run` shows its progress from there). log(text) gets the
-    other messages (start, warnings, cutbacks).
+    each Newton solve (a holder's re-solves too); on_step(record, problem) after each
+    converged step is written, with its drape.step_record.StepRecord (`drape run` shows its
+    progress from there). log(text) gets the other messages (start, warnings, cutbacks).
     Raises RunFailed (results so far written) when a step does not converge, Interrupted on
     SIGTERM/SIGINT (after the checkpoint), InputError if the results folder holds results and
     neither ``overwrite`` (start over) nor ``resume`` (continue from its checkpoint) is given.
@@ -149,8 +169,8 @@ def run_job(job, comm=None, *, output=None, petsc_options=None, on_step=None, lo
     claim(folder, RESULT_FILES, comm=comm, overwrite=overwrite, resume=resume,
           also_remove=ALSO_REMOVED, can_resume=True)
     hooks = Hooks(on_start=on_start, on_attempt=on_attempt, on_solve=on_solve, on_step=on_step)
-    loop = StepLoop(job, comm, folder, petsc_options=petsc_options, log=log,
-                    jit_params=jit_params, resume=resume, hooks=hooks)
+    loop = StepLoop(job, job_parts(job, comm, log), comm, folder, petsc_options=petsc_options,
+                    log=log, jit_params=jit_params, resume=resume, hooks=hooks)
     return loop.run()
 
 

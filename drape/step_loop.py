@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from drape.step_record import StepRecord, WorkLedger
+
 #: what a run writes in its folder (drape.io.folder.claim refuses to overwrite them silently)
 RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
 #: removed with them by --overwrite
@@ -35,7 +37,7 @@ class Hooks:
     on_start: object = None     #: on_start(RunParts) once the run is set up
     on_attempt: object = None   #: on_attempt(t) before each Newton attempt at load factor t
     on_solve: object = None     #: on_solve(solver, result) after each Newton solve
-    on_step: object = None      #: on_step(row, problem) after a converged step is written
+    on_step: object = None      #: on_step(record, problem) after a converged step is written
 
 
 @dataclasses.dataclass
@@ -48,44 +50,39 @@ class RunParts:
     motion: object       #: drape.fe.constraints.PrescribedMotion
     parts: list          #: the job's parts (drape.fe.job_part.JobPart)
 
-    @property
-    def forming(self):
-        """The forming process (drape.forming.press.Forming), or None for a flat job."""
-        from drape.forming.press import Forming
-        return next((part for part in self.parts if isinstance(part, Forming)), None)
+    def part(self, kind: type):
+        """The job's part of class ``kind`` (e.g. drape.forming.press.Forming), or None."""
+        return next((part for part in self.parts if isinstance(part, kind)), None)
 
 
 @dataclasses.dataclass
 class RunSummary:
-    steps: int
-    t: float
-    seconds: float
-    folder: Path
-    rows: list
-    timings: dict
+    """What a finished run returns (drape.run.run_job)."""
+    steps: int          #: the last converged step's number
+    t: float            #: its load factor
+    seconds: float      #: wall time of the run (s)
+    folder: Path        #: the results folder
+    rows: list          #: every converged step's drape.step_record.StepRecord, step 0 first
+    timings: dict       #: the membrane problem's timings (s) and counts (count_*)
 
 
-def job_parts(job, comm, log) -> list:
-    """The parts the job's config asks for, in the order they add their columns."""
-    from drape.reports.bias_extension import BiasExtensionReport
-    from drape.reports.frame_force import FrameForceReport
-    config = job.config
-    parts = []
-    if config.process is not None:
-        from drape.forming.press import Forming
-        parts.append(Forming(job, comm, log=log))
-    if config.picture_frame is not None:
-        parts.append(FrameForceReport(config))
-    if config.bias_extension is not None:
-        parts.append(BiasExtensionReport(config, comm))
-    return parts
+def bending_rigidity(bending, parts) -> float:
+    """The problem's bending rigidity B (N mm): the config's ``[bending]`` rigidity, else the
+    first part's default (a forming job's), else 0."""
+    if bending.rigidity is not None:
+        return bending.rigidity
+    defaults = [part.default_bending_rigidity for part in parts
+                if part.default_bending_rigidity is not None]
+    return defaults[0] if defaults else 0.0
 
 
 class StepLoop:
     """One run of a job in its results folder (collective over ``comm``)."""
 
-    def __init__(self, job, comm, folder: Path, *, petsc_options=None, log=None,
+    def __init__(self, job, parts: list, comm, folder: Path, *, petsc_options=None, log=None,
                  jit_params=None, resume=False, hooks: Hooks | None = None):
+        """``parts``: the job's drape.fe.job_part.JobPart objects (drape.run.job_parts), in
+        the order they add their columns."""
         from drape.errors import InputError
         from drape.fe.constraints import PrescribedMotion
         from drape.fe.loading import Loading
@@ -100,10 +97,10 @@ class StepLoop:
         self.hooks = hooks or Hooks()
         self.say = say = log or (lambda *_: None)
         config = self.config = job.config
-        forming = config.process is not None
-        self.parts = job_parts(job, comm, say)
+        self.parts = parts
         try:
-            blank_mesh = create_blank_mesh(comm, config.blank, config.mesh, centred=forming)
+            blank_mesh = create_blank_mesh(comm, config.blank, config.mesh,
+                                           centred=any(part.centres_blank for part in parts))
         except InputError as error:  # the mesher names the key; the job file is ours to add
             raise error.located(str(job.path)) from None
         say(f"drape run: {job.path}: {blank_mesh.description}, {comm.size} rank(s)")
@@ -112,8 +109,8 @@ class StepLoop:
         self.problem = problem = MembraneProblem(
             blank_mesh, NestedSurfaceLaw(job.params), config.blank.yarn_angle,
             config.regularisation.out_of_plane_damping, contributions=contributions or None,
-            jit_params=jit_params, bending_rigidity=config.bending.value(forming),
-            inertia=forming and config.process.areal_density > 0,
+            jit_params=jit_params, bending_rigidity=bending_rigidity(config.bending, parts),
+            inertia=any(part.inertial for part in parts),
             neutral_loading_band=config.solver.neutral_loading_band)
         self.motion = PrescribedMotion(problem.V, blank_mesh, self.loading)
         for part in self.parts:
@@ -128,24 +125,27 @@ class StepLoop:
         from drape.reports.oscillation import ShearOscillation
         self.oscillation = ShearOscillation(problem)
         self.oscillation_warned = False
-        self.rows = []
-        self.ledger = {"external": 0.0, "regularisation": 0.0, "f": None, "g": None}
+        self.records = []
+        self.ledger = WorkLedger()
         self._open_outputs(resume)
         if config.mesh.pattern == "free":
             say(FREE_MESH_WARNING)
 
     def _open_outputs(self, resume: bool) -> None:
         """The checkpoints (and the state to resume from), the disk's watch and the writer."""
-        from drape.io.checkpoint import Checkpoints, rewind_outputs
+        from drape.io.checkpoint import Checkpoints
         from drape.io.disk import Disk, estimate
+        from drape.io.rewind import rewind_outputs
         from drape.io.writer import FIELDS_FILE, ResultsWriter
         config, folder, comm = self.config, self.folder, self.comm
-        self.checkpoints = Checkpoints(folder, self.problem, self.job,
-                                       config.output.checkpoint_every, self.rows, self.ledger,
-                                       self.motion.prescribed_dofs)
+        histories, boundaries = list(self.loading.histories), list(self.motion.boundary_dofs)
+        self.checkpoints = Checkpoints(
+            folder, self.problem, self.job, config.output.checkpoint_every, self.records,
+            self.ledger, self.motion.prescribed_dofs,
+            read_row=lambda row: StepRecord.from_row(row, histories, boundaries))
         self.start = self.checkpoints.load() if resume else None   # (step, t, dt)
         if self.start is not None:
-            rewind_outputs(folder, self.rows, self.start[1], comm)
+            rewind_outputs(folder, self.records, self.start[1], comm)
             self.say(f"drape run: resuming from the checkpoint of step {self.start[0]} "
                      f"(t = {self.start[1]:.6g})")
         cell_fields = {name: field for part in self.parts
@@ -161,49 +161,42 @@ class StepLoop:
 
     # --- one step ---------------------------------------------------------------------------
     def record(self, step, t, iterations=0, cutbacks=0, dt=0.0, residual=0.0, seconds=0.0):
-        """The converged step's row of steps.csv (collective), appended to the rows."""
+        """The converged step's record (collective), appended to the records."""
         from mpi4py import MPI
-        problem, comm, ledger, rows = self.problem, self.comm, self.ledger, self.rows
+        problem, comm, ledger, records = self.problem, self.comm, self.ledger, self.records
         force = problem.internal_force()
         f_prescribed = force.array_r[self.motion.prescribed_dofs].copy()
         u_prescribed = problem.u.x.array[self.motion.prescribed_dofs].copy()
-        if ledger["f"] is not None:
-            local = 0.5 * (ledger["f"] + f_prescribed) @ (u_prescribed - ledger["g"])
-            ledger["external"] += comm.allreduce(float(local))
-        ledger["f"], ledger["g"] = f_prescribed, u_prescribed
+        ledger.add_boundary_work(f_prescribed, u_prescribed, comm)
         response = problem.response
-        row = {"step": step, "t": t, "dt": dt, "newton_iterations": iterations,
-               "cutbacks": cutbacks, "residual_norm": residual}
-        row.update(self.loading.history_values(t))
-        for name, value in self.motion.reactions(force).items():
-            row.update({f"{name}_Fx": value[0], f"{name}_Fy": value[1], f"{name}_Fz": value[2]})
-        row["external_work"] = ledger["external"]
-        row["regularisation_work"] = ledger["regularisation"]
-        row["regularisation_share"] = (ledger["regularisation"] / abs(ledger["external"])
-                                       if ledger["external"] != 0.0 else 0.0)
-        row["bending_energy"] = problem.bending_energy()
         points = response.tau.size
         local_max = float(np.abs(response.gamma_t_deg).max()) if points else 0.0
-        row["max_shear_angle_deg"] = comm.allreduce(local_max, op=MPI.MAX)
         strain = float(problem.yarn_strains().max()) if points else 0.0
-        row["max_yarn_strain"] = comm.allreduce(strain, op=MPI.MAX)
-        row["shear_oscillation_deg"] = self.oscillation.measure()
-        self._warn_of_oscillation(row)
-        row["tau_mean"] = comm.allreduce(float(response.tau.sum())) / comm.allreduce(points)
+        record = StepRecord(
+            step, t, dt, iterations, cutbacks, residual,
+            histories=self.loading.history_values(t),
+            reactions={name: tuple(value) for name, value in self.motion.reactions(force).items()},
+            external_work=ledger.external, regularisation_work=ledger.regularisation,
+            bending_energy=problem.bending_energy(),
+            max_shear_angle_deg=comm.allreduce(local_max, op=MPI.MAX),
+            max_yarn_strain=comm.allreduce(strain, op=MPI.MAX),
+            shear_oscillation_deg=self.oscillation.measure(),
+            tau_mean=comm.allreduce(float(response.tau.sum())) / comm.allreduce(points),
+            seconds=seconds)
+        self._warn_of_oscillation(record)
         for part in self.parts:
-            part.measure(row, rows, force)
+            part.measure(record, records, force)
         force.destroy()
-        row["seconds"] = seconds
-        rows.append(row)
-        return row
+        records.append(record)
+        return record
 
-    def _warn_of_oscillation(self, row: dict) -> None:
+    def _warn_of_oscillation(self, record: StepRecord) -> None:
         """Once per run: the shear map oscillates from cell to cell above the threshold."""
         from drape.reports.oscillation import OSCILLATION_WARNING
-        value = row["shear_oscillation_deg"]
+        value = record.shear_oscillation_deg
         if value > OSCILLATION_WARNING and not self.oscillation_warned:
             self.oscillation_warned = True
-            self.say(f"drape run: warning: step {row['step']}: the shear angle oscillates from "
+            self.say(f"drape run: warning: step {record.step}: the shear angle oscillates from "
                      f"cell to cell by +-{value:.3g} deg (shear_oscillation_deg in steps.csv): "
                      f"above {OSCILLATION_WARNING:g} deg the shear map has a cell-scale pattern, "
                      "a spurious checkerboard (a mesh that locks) or wrinkles only a few cells "
@@ -221,7 +214,7 @@ class StepLoop:
         if self.hooks.on_attempt is not None:
             self.hooks.on_attempt(t)
         # a step whose files would not fit on the disk: the run stops before solving it
-        number = self.rows[-1]["step"] + 1
+        number = self.records[-1].step + 1
         self.disk.check(number, self.checkpoints.due(number))
         self.motion.set_load(t)
         for part in self.parts:
@@ -239,18 +232,18 @@ class StepLoop:
         """Commit a converged step (a drape.fe.solver.Step), record, write and checkpoint it."""
         from drape.errors import WriteFailed
         from drape.io.writer import FIELDS_FILE, STEPS_FILE
-        self.ledger["regularisation"] += self.problem.regularisation_work()
+        self.ledger.regularisation += self.problem.regularisation_work()
         self.problem.commit(step.t)
-        row = self.record(step.number, step.t, step.iterations, step.cutbacks, step.dt,
-                          step.residual, step.seconds)
+        record = self.record(step.number, step.t, step.iterations, step.cutbacks, step.dt,
+                             step.residual, step.seconds)
         try:
             self.disk.write(f"step {step.number}'s results ({STEPS_FILE}, {FIELDS_FILE})",
-                            lambda: self.writer.write_step(row, step.t,
+                            lambda: self.writer.write_step(record, step.t,
                                                            last=step.t >= 1.0 - 1e-12),
                             root_only=False, fields=True)
         except WriteFailed as failure:      # the files end with the step before
             failure.committed = True
-            self.rows.pop()
+            self.records.pop()
             raise
         self.disk.measure((STEPS_FILE, FIELDS_FILE, "fields.h5"))
         try:
@@ -259,7 +252,7 @@ class StepLoop:
             failure.committed = True
             raise
         if self.hooks.on_step is not None:
-            self.hooks.on_step(row, self.problem)
+            self.hooks.on_step(record, self.problem)
 
     # --- the whole run ----------------------------------------------------------------------
     def run(self) -> RunSummary:
@@ -288,7 +281,7 @@ class StepLoop:
                            dt0=start[2], log=self.say)
         except WriteFailed as failure:
             write_failure = failure
-            raise write_failed(failure, self.writer, self.checkpoints, self.rows,
+            raise write_failed(failure, self.writer, self.checkpoints, self.records,
                                self.folder) from None
         except RunFailed as failure:
             raise self._failed(failure) from None
@@ -301,9 +294,9 @@ class StepLoop:
         self.checkpoints.finished()
         timings = dict(self.problem.timings)
         timings.update({f"count_{k}": v for k, v in self.problem.counts.items()})
-        rows = self.rows
-        return RunSummary(rows[-1]["step"], rows[-1]["t"], time.perf_counter() - self.started,
-                          self.folder, rows, timings)
+        records = self.records
+        return RunSummary(records[-1].step, records[-1].t, time.perf_counter() - self.started,
+                          self.folder, records, timings)
 
     def _failed(self, failure):
         """A step that did not converge, or a signal: the last converged step's snapshot and
@@ -311,30 +304,30 @@ class StepLoop:
         from drape.errors import Interrupted, RunFailed
         self.problem.restore()
         self.problem.evaluate()
-        rows, folder = self.rows, self.folder
+        records, folder = self.records, self.folder
         if self.config.output.snapshot != "none":
-            self.writer.write_snapshot(rows[-1]["t"])
+            self.writer.write_snapshot(records[-1].t)
         saved = self.checkpoints.save_last()
         if isinstance(failure, Interrupted):
-            return Interrupted(f"{failure} received; stopped after step {rows[-1]['step']} at "
-                               f"t = {rows[-1]['t']:.6g}: results"
+            return Interrupted(f"{failure} received; stopped after step {records[-1].step} at "
+                               f"t = {records[-1].t:.6g}: results"
                                f"{' and checkpoint' if saved else ''} up to it are in {folder}")
         hint = "".join(part.failure_hint for part in self.parts)
-        return RunFailed(f"{failure}; results up to t = {rows[-1]['t']:.6g} (step "
-                         f"{rows[-1]['step']}) are in {folder}"
+        return RunFailed(f"{failure}; results up to t = {records[-1].t:.6g} (step "
+                         f"{records[-1].step}) are in {folder}"
                          f"{' (with a checkpoint)' if saved else ''}{hint}")
 
     def _finish_parts(self) -> None:
-        """Each part's files from the rows so far (at least one converged step)."""
-        if len(self.rows) < 2:
+        """Each part's files from the records so far (at least one converged step)."""
+        if len(self.records) < 2:
             return
         for part in self.parts:
             self.disk.write(part.files, lambda part=part: part.finish(
-                self.folder, self.rows, time.perf_counter() - self.started),
+                self.folder, self.records, time.perf_counter() - self.started),
                 root_only=part.finish_on_root)
 
 
-def write_failed(failure, writer, checkpoints, rows, folder):
+def write_failed(failure, writer, checkpoints, records, folder):
     """After a write failure (drape.io.disk): fields.xdmf back to its last complete step; a
     checkpoint of that step when the failure came before the step changed anything (a step
     that would not fit) and there is room for one (else the last good one is kept). Returns
@@ -349,7 +342,7 @@ def write_failed(failure, writer, checkpoints, rows, folder):
         except WriteFailed:
             from drape.io.disk import size
             room = size(checkpoints.disk.checkpoint_bytes())
-    kept = (f"; results up to step {rows[-1]['step']} (t = {rows[-1]['t']:.6g}) are kept in "
+    kept = (f"; results up to step {records[-1].step} (t = {records[-1].t:.6g}) are kept in "
             f"{folder}")
     saved = checkpoints.saved_step
     if saved is not None:

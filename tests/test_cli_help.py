@@ -87,14 +87,15 @@ def test_run_progress_bar_on_a_terminal():
     from types import SimpleNamespace
 
     from drape.run import step_progress
+    from drape.step_record import StepRecord
     job = SimpleNamespace(config=SimpleNamespace(history={"d": None}))
     stream = Terminal()
     progress = step_progress(job, enabled=True, stream=stream)
-    progress.on_step({"step": 1, "t": 0.25, "dt": 0.25, "newton_iterations": 4, "cutbacks": 0,
-                      "d": 3.75, "max_shear_angle_deg": 9.5})
+    progress.on_step(StepRecord(step=1, t=0.25, dt=0.25, newton_iterations=4, cutbacks=0,
+                                histories={"d": 3.75}, max_shear_angle_deg=9.5))
     progress.message("step 2: no convergence at t = 0.75, cut back")
-    progress.on_step({"step": 2, "t": 0.5, "dt": 0.25, "newton_iterations": 5, "cutbacks": 1,
-                      "d": 7.5, "max_shear_angle_deg": 19.0})
+    progress.on_step(StepRecord(step=2, t=0.5, dt=0.25, newton_iterations=5, cutbacks=1,
+                                histories={"d": 7.5}, max_shear_angle_deg=19.0))
     progress.close()
     text = stream.getvalue()
     assert text.startswith("\r[######..................]  25.0% step 1: load 0.25/1 (+0.25), "
@@ -104,7 +105,7 @@ def test_run_progress_bar_on_a_terminal():
     assert text.endswith("\n")
     silent = Terminal()
     off = step_progress(job, enabled=False, stream=silent)
-    off.on_step({"step": 1, "t": 1.0, "dt": 1.0, "newton_iterations": 1, "cutbacks": 0,
-                 "d": 1.0, "max_shear_angle_deg": 1.0})
+    off.on_step(StepRecord(step=1, t=1.0, dt=1.0, newton_iterations=1, cutbacks=0,
+                           histories={"d": 1.0}, max_shear_angle_deg=1.0))
     off.close()
     assert silent.getvalue() == ""

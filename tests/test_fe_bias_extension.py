@@ -33,10 +33,11 @@ def run(comm, folder, overrides=()):
                    overrides=list(overrides) + ["output.xdmf=false"])
     records = []
 
-    def on_step(row, problem):
+    def on_step(record, problem):
         records.append({
-            "d": row["d"], "force": row["right_Fx"], "left_force": row["left_Fx"],
-            "strain": row["max_yarn_strain"], "reg": row["regularisation_work"],
+            "d": record.histories["d"], "force": record.reactions["right"][0],
+            "left_force": record.reactions["left"][0],
+            "strain": record.max_yarn_strain, "reg": record.regularisation_work,
             "centre": mean_abs_shear(comm, problem, (LENGTH / 2, WIDTH / 2), 0.1 * WIDTH),
             # zone C (next to the left clamp) and zone B (along the bottom edge, left)
             "C": mean_abs_shear(comm, problem, (WIDTH / 5, WIDTH / 2), 0.08 * WIDTH),

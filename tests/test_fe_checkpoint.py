@@ -314,9 +314,9 @@ def test_a_nan_once_is_a_cutback_not_a_result(comm, shared_tmp, monkeypatch, whe
     summary = run_with_nan(comm, shared_tmp / where, monkeypatch,
                            **{f"{where}_calls": lambda n: n == 40})
     rows = summary.rows
-    assert rows[-1]["t"] == 1.0
-    assert sum(r["cutbacks"] for r in rows) == 1
-    assert all(np.isfinite(float(v)) for r in rows for v in r.values())
+    assert rows[-1].t == 1.0
+    assert sum(r.cutbacks for r in rows) == 1
+    assert all(np.isfinite(float(v)) for r in rows for v in r.row().values())
     if comm.rank == 0:
         result = np.load(shared_tmp / where / "result.npz")
         assert np.isfinite(result["u"]).all() and np.isfinite(result["tau"]).all()

@@ -24,15 +24,15 @@ def test_cutbacks_leave_no_trace(comm, shared_tmp):
     a = run_job(load_job(CONFIGS / "bias_extension.toml", overrides=FAST), comm,
                 output=shared_tmp / "a")
     rows_a = a.rows
-    assert rows_a[1]["cutbacks"] >= 1
-    assert sum(r["cutbacks"] for r in rows_a) >= 1 and rows_a[-1]["t"] == 1.0
-    t = [r["t"] for r in rows_a]
-    d = [r["d"] for r in rows_a]
+    assert rows_a[1].cutbacks >= 1
+    assert sum(r.cutbacks for r in rows_a) >= 1 and rows_a[-1].t == 1.0
+    t = [r.t for r in rows_a]
+    d = [r.histories["d"] for r in rows_a]
     waypoints = [f"history.d.t={t!r}", f"history.d.values={d!r}"]
     b = run_job(load_job(CONFIGS / "bias_extension.toml", overrides=FAST + waypoints), comm,
                 output=shared_tmp / "b")
-    assert [r["t"] for r in b.rows] == t
-    assert all(r["cutbacks"] == 0 for r in b.rows)
+    assert [r.t for r in b.rows] == t
+    assert all(r.cutbacks == 0 for r in b.rows)
     if comm.rank == 0:
         ra, rb = np.load(shared_tmp / "a" / "result.npz"), np.load(shared_tmp / "b" / "result.npz")
         assert np.abs(ra["u"] - rb["u"]).max() <= 1e-12 * np.abs(ra["u"]).max()

@@ -194,8 +194,8 @@ def test_regularisation_work_is_reported_and_its_effect_shrinks_with_the_damping
         job = load_job(path, overrides=[f"regularisation.out_of_plane_damping={k}"])
         summary = run_job(job, comm, output=shared_tmp / f"lift_{k}")
         problem_rows = summary.rows
-        share[k] = problem_rows[-1]["regularisation_share"]
-        assert problem_rows[-1]["regularisation_work"] > 0.0
+        share[k] = problem_rows[-1].regularisation_share
+        assert problem_rows[-1].regularisation_work > 0.0
         if comm.rank == 0:
             data = np.load(shared_tmp / f"lift_{k}" / "result.npz")
             x = data["node_xy"][:, 0]

@@ -20,8 +20,8 @@ def _run(comm, folder, overrides=()):
     job = load_job(CONFIGS / "picture_frame.toml", overrides=list(overrides))
     angles, taus = [], []
 
-    def on_step(row, problem):
-        angles.append(row["angle"])
+    def on_step(record, problem):
+        angles.append(record.histories["angle"])
         taus.append(problem.response.tau.copy())
 
     summary = run_job(job, comm, output=folder, on_step=on_step)
@@ -50,8 +50,8 @@ def test_every_quadrature_point_follows_the_single_point_law(comm, shared_tmp):
     assert np.count_nonzero(np.diff(np.sign(reference))) >= 8
     rows = summary.rows
     # the regularisation never acts in the plane: u_z stays exactly 0
-    assert all(row["regularisation_work"] == 0.0 for row in rows)
-    assert all(row["boundary_Fz"] == 0.0 for row in rows)
+    assert all(row.regularisation_work == 0.0 for row in rows)
+    assert all(row.reactions["boundary"][2] == 0.0 for row in rows)
 
     if comm.rank == 0:
         folder = shared_tmp / "pf"

@@ -19,7 +19,7 @@ def test_iterative_solver_matches_the_direct_one(comm, shared_tmp):
         job = load_job(CONFIGS / "bias_extension.toml",
                        overrides=SHORT + [f"solver.linear={linear}"])
         summary = run_job(job, comm, output=shared_tmp / linear)
-        results[linear] = [(r["t"], r["right_Fx"]) for r in summary.rows]
+        results[linear] = [(r.t, r.reactions["right"][0]) for r in summary.rows]
     direct, iterative = np.array(results["direct"]), np.array(results["iterative"])
     assert direct.shape == iterative.shape and np.array_equal(direct[:, 0], iterative[:, 0])
     assert np.abs(direct[:, 1] - iterative[:, 1]).max() <= 1e-6 * np.abs(direct[:, 1]).max()
@@ -67,8 +67,9 @@ def test_the_jacobian_is_a_block_matrix_only_under_lu_with_mumps():
 def test_run_hooks_see_every_attempt_solve_and_step(comm, shared_tmp):
     """The hooks benchmarks use instead of patching: on_start once with the run's parts;
     on_attempt before each Newton attempt, on_solve after it (no holder: one solve each);
-    on_step once per converged step, with the row steps.csv gets. A step cut back counts one
+    on_step once per converged step, with its record (the summary's). A step cut back counts one
     attempt more than it has rows."""
+    from drape.forming.press import Forming
     calls = {"start": [], "attempt": [], "solve": [], "step": []}
     job = load_job(CONFIGS / "bias_extension.toml", overrides=SHORT)
     summary = run_job(
@@ -76,14 +77,14 @@ def test_run_hooks_see_every_attempt_solve_and_step(comm, shared_tmp):
         on_start=lambda run: calls["start"].append(run),
         on_attempt=lambda t: calls["attempt"].append(t),
         on_solve=lambda newton, result: calls["solve"].append(result),
-        on_step=lambda row, problem: calls["step"].append(row))
+        on_step=lambda record, problem: calls["step"].append(record))
     rows = summary.rows[1:]                      # step 0 is the unloaded state, not solved
     (run,) = calls["start"]
-    assert run.forming is None and run.problem is run.solver.problem
+    assert run.part(Forming) is None and run.problem is run.solver.problem
     assert calls["step"] == rows
-    cutbacks = sum(row["cutbacks"] for row in rows)
+    cutbacks = sum(row.cutbacks for row in rows)
     assert len(calls["attempt"]) == len(rows) + cutbacks == len(calls["solve"])
     assert [r.converged for r in calls["solve"]].count(True) == len(rows)
     assert [r.iterations for r in calls["solve"] if r.converged] == [
-        row["newton_iterations"] for row in rows]
+        row.newton_iterations for row in rows]
     assert calls["attempt"][-1] == pytest.approx(1.0)

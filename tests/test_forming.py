@@ -36,10 +36,11 @@ def assert_same_steps(a, b, folders, keys, bound, holder):
     """Runs a and b (summaries; results in ``folders``) took the same load steps, every step's
     forces ``keys`` agree within bound x holder (N) and the last shear fields within bound x
     their peak."""
-    assert [row["t"] for row in a.rows] == [row["t"] for row in b.rows]
+    assert [row.t for row in a.rows] == [row.t for row in b.rows]
     for row_a, row_b in zip(a.rows, b.rows):
         for key in keys:
-            assert abs(row_a[key] - row_b[key]) < bound * holder, (row_a["step"], key)
+            assert abs(row_a.columns[key] - row_b.columns[key]) < bound * holder, (row_a.step,
+                                                                                   key)
     gamma_a, gamma_b = (point_fields(folder)[1] for folder in folders)
     assert np.abs(gamma_a - gamma_b).max() < bound * np.abs(gamma_b).max()
 
@@ -129,8 +130,8 @@ def test_the_forming_jacobian_is_the_derivative_of_the_residual(shared_tmp):
                    overrides=SHORT + ["output.xdmf=false", "solver.neutral_loading_band=0"])
     found = {}
 
-    def check(row, p):
-        if row["t"] < 1.0 - 1e-12:
+    def check(record, p):
+        if record.t < 1.0 - 1e-12:
             return
         increment = p.u_committed.vector.copy()
         increment.axpy(-1.0, p.u_previous.vector)
@@ -250,14 +251,15 @@ def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp, con
     # near the solution, too slowly for 1e-10 in 30 iterations (docs/forming.md)
     tight, tight_folder = converged
     for row in tight.rows[2:]:    # vertical equilibrium after the damped first step
-        assert abs(row["die_force"] - row["punch_force"] - row["holder_force"]) < (
-            1e-6 * row["die_force"]), row["step"]
+        forces = row.columns
+        assert abs(forces["die_force"] - forces["punch_force"] - forces["holder_force"]) < (
+            1e-6 * forces["die_force"]), row.step
     assert_same_steps(loose, tight, (shared_tmp / "loose", tight_folder),
                       ("punch_force", "holder_force"), 1e-4, job.config.process.holder_force)
-    end = tight.rows[-1]["punch_force"]
+    end = tight.rows[-1].columns["punch_force"]
     assert end > 1.0
-    assert abs(loose.rows[-1]["punch_force"] - end) < 1e-4 * end
-    iterations = [sum(row["newton_iterations"] for row in s.rows) for s in (loose, tight)]
+    assert abs(loose.rows[-1].columns["punch_force"] - end) < 1e-4 * end
+    iterations = [sum(row.newton_iterations for row in s.rows) for s in (loose, tight)]
     assert iterations[0] < iterations[1]
 
 
@@ -277,8 +279,8 @@ def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_
     fixed = FIXED + ["solver.rtol=1e-10", "solver.max_iterations=300"]
     stiffened = {}
 
-    def look(row, p):    # the last Jacobian's tangent against the law's consistent one
-        if row["t"] >= 1.0 - 1e-12:
+    def look(record, p):    # the last Jacobian's tangent against the law's consistent one
+        if record.t >= 1.0 - 1e-12:
             consistent, used = p.response.dtau_dC12, p.dtau.x.array[p.qdofs]
             changed = used != consistent
             stiffened["points"] = int(changed.sum())
@@ -297,8 +299,8 @@ def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_
     assert MPI.COMM_WORLD.allreduce(stiffened["points"]) > 0
     assert stiffened["plastic"] and stiffened["error"] < 1e-12
     print(f"\nstiffened points at 5 mm: {stiffened['points']}; iterations "
-          f"{sum(r['newton_iterations'] for r in band.rows)} with the band, "
-          f"{sum(r['newton_iterations'] for r in plain.rows)} without")
+          f"{sum(r.newton_iterations for r in band.rows)} with the band, "
+          f"{sum(r.newton_iterations for r in plain.rows)} without")
 
 
 @pytest.mark.two_ranks
@@ -431,7 +433,8 @@ def test_the_holder_is_moved_until_its_force_is_within_one_percent(offset, slope
     measured, the next ones by a secant step, or, once the force has been seen on both sides
     of F, inside that bracket, until the force is within 1 % of F; the iterations of all the
     solves add up, and a re-solve that fails fails the attempt with F' as it was."""
-    from drape.forming.press import HOLDER_TOLERANCE, Forming, HolderControl
+    from drape.forming.holder import HOLDER_TOLERANCE, HolderControl
+    from drape.forming.press import Forming
     from drape.fe.solver import SolveResult
     F = 200.0
     holder = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1)
@@ -460,7 +463,8 @@ def test_the_holder_keeps_the_solve_closest_to_its_force_when_the_moves_are_spen
     all seven solves."""
     from types import SimpleNamespace
 
-    from drape.forming.press import HOLDER_CORRECTIONS, Forming, HolderControl
+    from drape.forming.holder import HOLDER_CORRECTIONS, HolderControl
+    from drape.forming.press import Forming
     from drape.fe.solver import SolveResult
     assert HOLDER_CORRECTIONS == 6
     F = 200.0
@@ -502,7 +506,8 @@ def test_the_holder_comes_down_from_the_wrinkles_onto_the_flange():
     secant's, from their slope, lands on the flange, 453 N above F; from there every target
     lies inside the bracket, and the sixth re-solve lands on F (F' = 14). The secant alone
     (three moves) kept a solve 14.3 N off."""
-    from drape.forming.press import HOLDER_TOLERANCE, Forming, HolderControl
+    from drape.forming.holder import HOLDER_TOLERANCE, HolderControl
+    from drape.forming.press import Forming
     from drape.fe.solver import SolveResult
     F = 500.0
 
@@ -533,7 +538,7 @@ def test_the_holder_lifts_as_far_as_its_force_needs():
     gives F'/A); below F_min = 1e-3 F the holder keeps lifting with the plain penalty's slope
     2/(eps_N A), so d is continuous and increasing in F' whatever F' the control asks for."""
     from drape.forming.contact import normal_pressure
-    from drape.forming.press import HolderControl
+    from drape.forming.holder import HolderControl
     F, A, eps, g0 = 500.0, 2.0e4, 17.8, 0.375
     holder = HolderControl(F, area=A, penalty=eps, smoothing=g0)
 
@@ -560,7 +565,7 @@ def test_friction_has_memory_so_the_step_size_does_not_matter(steps):
     stick zone carries over from step to step); dragged back by 1.5 delta after sliding, it
     is +mu p / 2 (sliding left the elastic slip at +delta); off the tool it forgets."""
     from drape.forming.contact import normal_pressure
-    from drape.forming.press import ToolContact
+    from drape.forming.tool_contact import ToolContact
     mu, delta, eps = 0.3, 0.05, 100.0
     contact = ToolContact({"die": FlatDie()}, set(), 0.0, eps, mu, delta, cutoff=10.0)
     p = float(normal_pressure(np.array([-0.01]), eps, 0.0)[0][0])
@@ -600,8 +605,8 @@ def test_a_resumed_forming_run_equals_the_uninterrupted_one(tmp_path, inertia):
     class Stop(Exception):
         pass
 
-    def stop_after_4(row, problem):
-        if row["step"] == 4:
+    def stop_after_4(record, problem):
+        if record.step == 4:
             raise Stop
 
     with pytest.raises(Stop):
@@ -611,7 +616,8 @@ def test_a_resumed_forming_run_equals_the_uninterrupted_one(tmp_path, inertia):
     assert resumed.steps == full.steps
     for a, b in zip(resumed.rows, full.rows):
         for key in ("punch_force", "holder_force", "max_shear_angle_deg"):
-            assert a[key] == pytest.approx(b[key], rel=1e-8, abs=1e-10), (a["step"], key)
+            assert a.row()[key] == pytest.approx(b.row()[key], rel=1e-8, abs=1e-10), (a.step,
+                                                                                      key)
 
 
 @pytest.mark.slow

@@ -79,7 +79,7 @@ def test_the_step_holders_flat_face_is_the_built_in_holders_ring(cad, comm):
     points but for a band of the fillet's own tolerance (1 degree of its 5 mm radius: r from
     69.91 to 70 mm, and the points at 70 mm by round-off); the opening between holder and die
     is 0 (both faces at z = 0)."""
-    from drape.forming.press import holder_region, pinch_region
+    from drape.forming.holder import holder_region, pinch_region
     from drape.geometry.tools import build_tools, load_tools_config
     from drape.forming.surfaces import MeshedSurface
     tools = load_tools_config(cad / "hemisphere_step.toml", "tools")
@@ -107,14 +107,16 @@ def test_the_step_holders_flat_face_is_the_built_in_holders_ring(cad, comm):
 def test_a_holder_force_more_than_five_percent_off_is_a_warning_with_the_step():
     """Forming.control_holder after converged steps measuring 200, 209.9 (4.95 % off) and
     211 N (5.5 %) of F = 200 N: one warning, naming step 3 and both forces."""
-    from drape.forming.press import Forming, HolderControl
+    from drape.forming.holder import HolderControl
+    from drape.forming.press import Forming
+    from drape.step_record import StepRecord
     said = []
     holder = HolderControl(200.0, area=1000.0, penalty=1.0, smoothing=0.1)
     forming = SimpleNamespace(holder=holder, process=SimpleNamespace(holder_force=200.0),
                               holder_warnings=[], say=said.append)
     for step, force in enumerate((200.0, 209.9, 211.0), start=1):
-        Forming.control_holder(forming, {"t": 0.1 * step, "step": step, "stroke": 0.5 * step,
-                                         "holder_force": force})
+        Forming.control_holder(forming, StepRecord(step, 0.1 * step, columns={
+            "stroke": 0.5 * step, "holder_force": force}))
     assert forming.holder_warnings == [(3, 211.0)]
     assert len(said) == 1
     assert "step 3" in said[0] and "211 N" in said[0] and "200 N" in said[0]
@@ -201,7 +203,7 @@ def test_step_tools_give_the_built_in_tools_answer(both):
         low, high = report["holder_force_measured_N"]
         assert 198.0 <= low <= high <= 202.0
     for row in step_summary.rows[1:]:
-        assert row["holder_force"] == pytest.approx(200.0, rel=0.01), row["step"]
+        assert row.columns["holder_force"] == pytest.approx(200.0, rel=0.01), row.step
     assert any("holder force 200 N (force-controlled)" in line for line in said)
 
 
@@ -213,7 +215,7 @@ def test_a_position_controlled_step_holder_reports_the_force_it_measured(cad, sh
     summary, report, said = run(cad / "position" / "hemisphere_step.toml",
                                 shared_tmp / "position",
                                 ["process.stroke=0.25", "steps.initial=1", "steps.maximum=1"])
-    measured = summary.rows[-1]["holder_force"]
+    measured = summary.rows[-1].columns["holder_force"]
     assert measured > 1000.0
     assert report["holder_control"] == "position"
     assert report["holder_force_N"] == pytest.approx(measured, rel=1e-12)
@@ -250,4 +252,4 @@ def test_step_tools_give_the_built_in_double_domes_answer(shared_tmp, comm):
         assert 495.0 <= low <= high <= 505.0
         assert report["holder_force_steps_off_5pct"] == 0
     for row in step_summary.rows[1:]:
-        assert row["holder_force"] == pytest.approx(500.0, rel=0.01), row["step"]
+        assert row.columns["holder_force"] == pytest.approx(500.0, rel=0.01), row.step

@@ -208,7 +208,7 @@ def test_bias_extension_with_the_calibrated_material(comm, shared_tmp):
     in_memory = Job(in_memory.config, in_memory.path, fit.nested)
     from_file = load_job(config, overrides=short + [f"material={path}"])
     assert from_file.params == dataclasses.replace(fit.nested)   # the file holds the fit, exactly
-    runs = [run_job(job, comm, output=shared_tmp / name).rows
+    runs = [[record.columns for record in run_job(job, comm, output=shared_tmp / name).rows]
             for name, job in (("memory", in_memory), ("file", from_file))]
     assert len(runs[0]) == len(runs[1]) >= 4
     for a, b in zip(*runs):

@@ -1,11 +1,12 @@
 """What a kind of job adds to the step loop of ``drape run``: the forming process, the picture
 frame's frame force, the bias-extension report.
 
-The loop (:func:`drape.run.run_job`) knows only this interface: it hands every part the problem
+The loop (:class:`drape.step_loop.StepLoop`) knows only this interface: it asks the parts how
+to set up the blank's mesh and problem (centred, bending, inertia), hands every part the problem
 and the boundary motion once, moves each part's load with its own, asks each for a first guess
-before Newton and for a re-solve after it, lets each add its columns to a converged step's row,
-and asks each for its files at the end. A patch test is a job with no parts. The defaults do
-nothing, so a part overrides only what it needs.
+before Newton and for a re-solve after it, lets each add its columns to a converged step's
+record, and asks each for its files at the end. A patch test is a job with no parts. The
+defaults do nothing, so a part overrides only what it needs.
 """
 
 from __future__ import annotations
@@ -26,6 +27,14 @@ class JobPart:
     files: str = ""
     #: :meth:`finish` runs on rank 0 only (True) or on every rank (collective)
     finish_on_root: bool = True
+    #: the blank is meshed centred on the origin, not from (0, 0) (a forming job: the tools'
+    #: axis)
+    centres_blank: bool = False
+    #: bending rigidity B (N mm) the problem gets when the config's bending.rigidity is unset
+    #: (None: this part has no say; with no part saying, 0)
+    default_bending_rigidity: float | None = None
+    #: the problem carries the blank's inertia (a forming job with an areal density)
+    inertial: bool = False
 
     def bind(self, problem, motion) -> None:
         """Once the membrane problem and the boundary motion exist."""
@@ -41,10 +50,12 @@ class JobPart:
         this part needs (e.g. until the holder's force is met); returns the result to keep."""
         return result
 
-    def measure(self, row: dict, rows: list, force) -> None:
-        """Add this part's columns to the converged step's ``row`` (``rows`` are the steps
-        before; ``force`` the assembled internal force vector)."""
+    def measure(self, record, records: list, force) -> None:
+        """Add this part's columns to the converged step's ``record`` (a
+        drape.step_record.StepRecord: its ``columns``, or a loop field the part adds to, as
+        a forming job's punch work to ``external_work``); ``records`` are the steps before,
+        ``force`` the assembled internal force vector."""
 
-    def finish(self, folder: Path, rows: list, seconds: float) -> None:
-        """At the end of a run (converged or not, rows of at least two steps): this part's
+    def finish(self, folder: Path, records: list, seconds: float) -> None:
+        """At the end of a run (converged or not, records of at least two steps): this part's
         files in ``folder``."""

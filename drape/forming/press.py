@@ -8,45 +8,34 @@ A job is a forming job when its config has a ``[process]`` table; its ``[tools]`
 blank (rectangle or disc) is centred on the tools' axis in the plane z = 0, where the die's top
 face and the holder's lower face are (``tools.*.gap`` = 0).
 
-* The punch and the die are rigid surfaces (exact for the hemisphere's surfaces of revolution,
-  :mod:`drape.forming.surfaces`, and for the double dome's rolling-ball constructions,
-  :mod:`drape.forming.double_dome`; an exact closest point on the gmsh triangulation of STEP tools)
-  queried at
-  the membrane's quadrature points from their current positions;
-  :func:`drape.forming.contact.traction`
-  gives traction and tangent. The punch moves by (0, 0, -stroke * t).
-* The blank holder is a rigid tool too, force-controlled: a membrane has no thickness, so the
-  holder pinches the flange against the die, both in smoothed penalty contact
-  (:func:`drape.forming.contact.normal_pressure`); its height is set so that the pinched flange
-  carries
-  the pressure F / A (A the blank's reference area under the holder's flat face); a converged
-  step whose measured holder force is off F by more than :data:`HOLDER_TOLERANCE` is solved
+* The tools and their contact with the blank: :mod:`drape.forming.tool_contact`.
+* The blank holder is a rigid tool too, force-controlled (:mod:`drape.forming.holder`): a
+  converged step whose measured holder force is off F by more than the tolerance is solved
   again with the holder moved (:meth:`Forming.hold_force`), and after every converged step the
-  height is corrected by the measured force (:class:`HolderControl`), as a press's cushion
-  does. Unlike a prescribed pressure, a rigid holder keeps the flange from
-  wrinkling under it. A STEP holder is force-controlled the same way (``tools.step.holder.
-  control = "force"``, the default): the flat face is found on the tools themselves
-  (:func:`pinch_region`); with ``control = "position"`` it stays where its file puts it and
-  its force is measured, not set. A converged step whose holder force is more than
-  :data:`HOLDER_WARNING` off process.holder_force is a warning in the log.
+  height is corrected by the measured force, as a press's cushion does. Unlike a prescribed
+  pressure, a rigid holder keeps the flange from wrinkling under it. A STEP holder is
+  force-controlled the same way (``tools.step.holder.control = "force"``, the default): the
+  flat face is found on the tools themselves; with ``control = "position"`` it stays where its
+  file puts it and its force is measured, not set. A converged step whose holder force is more
+  than :data:`~drape.forming.holder.HOLDER_WARNING` off process.holder_force is a warning in
+  the log.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
-import time
 from pathlib import Path
 
 import numpy as np
 
-from drape.errors import InputError
 from drape.fe.job_part import JobPart
-from drape.fe.membrane import PointContribution
 from drape.forming.checks import full_stroke, holder_mode, stroke_of, tool_set
-from drape.forming.contact import elastic_slip, gap_for_pressure, traction
-from drape.job import compose_title, describe_blank
+from drape.forming.holder import (HOLDER_CORRECTIONS, HOLDER_LEAST_SLOPE, HOLDER_MOST_SLOPE,
+                                  HOLDER_TOLERANCE, HOLDER_WARNING, Bracket, HolderControl,
+                                  holder_region, pinch_region)
+from drape.forming.tool_contact import ToolContact, tool_surfaces
+from drape.job import DEFAULT_FORMING_BENDING, compose_title, describe_blank
 from drape.reports.oscillation import OSCILLATION_WARNING
 
 # added to a quasi-static forming run's failure: where the steps shrink as the blank wrinkles
@@ -58,248 +47,10 @@ INERTIA_HINT = ("; if the steps shrank where the blank wrinkles or is drawn into
 
 FORCE_STROKE_FILE = "force_stroke.csv"
 SUMMARY_FILE = "summary.json"
-#: fabric counted as under the holder only when it lies on the die's top face (within this, mm)
-ON_DIE_TOLERANCE = 1.0
 #: out-of-plane damping (N/mm^3) of a forming job's first step when its config sets none: that
 #: step lifts the blank as meshed off the die to where the smoothed penalty lets go, and the
 #: parts with no tool pushing back have no out-of-plane stiffness there (docs/forming.md)
 SETTLING_DAMPING = 1e-3
-#: a converged step's holder force must be within this fraction of process.holder_force, else
-#: the step is solved again with the holder moved (:meth:`Forming.hold_force`), at most
-#: HOLDER_CORRECTIONS times: corrections between steps alone let the force drift where the
-#: fabric under the holder thickens, as in the locking stage (docs/forming.md, "Blank holder").
-#: Room for several moves: where the holder comes down from the wrinkles at its rim onto the
-#: flat flange the force bends sharply, and closing in on F inside the bracket can take more
-#: than the one or two moves most steps need
-HOLDER_TOLERANCE = 0.01
-HOLDER_CORRECTIONS = 6
-#: until the force has been seen on both sides of F, the re-solves after the first move the
-#: target by the error over the secant's slope of the measured force against the target, at
-#: least this: where the fabric pushes the holder at its rim the force answers a lift by a
-#: small fraction of it (double dome: 0.01-0.1)
-HOLDER_LEAST_SLOPE = 0.005
-#: and at most this: where the holder's rim presses the fabric drawn over the die's fillet the
-#: force grows faster than the target, and a slope bounded by 1 would make the moves overshoot
-#: by about as much as they correct, back and forth
-HOLDER_MOST_SLOPE = 10.0
-#: a converged step whose measured holder force is off process.holder_force by more than this
-#: fraction is a warning in the log (with the step and both forces) and is counted in
-#: summary.json: the log and the summary never state a force that was not applied
-HOLDER_WARNING = 0.05
-#: meshed (STEP) tools: the candidate lists' margin (mm, drape.forming.surfaces.MeshedSurface): a
-#: point is
-#: searched again once it has moved this far (in the tool's frame) since its last search
-TOOL_LIST_MARGIN = 0.5
-#: STEP tools: a point of the flat blank is under the holder's flat face when the holder's and
-#: the die's normals there are within 1 degree of the press axis (cos 1 deg) and the opening
-#: between the two faces is within PINCH_TOLERANCE (mm) of the smallest (:func:`pinch_region`)
-FLAT_COSINE = math.cos(math.radians(1.0))
-PINCH_TOLERANCE = 0.05
-
-
-# --- the holder's region --------------------------------------------------------------------------
-
-def pinch_region(holder, die, points, comm, reach: float = ON_DIE_TOLERANCE):
-    """STEP tools, whatever their shape: the points (P, 3) of the flat blank that lie between a
-    flat face of the holder and one of the die (both normals within 1 degree of the press axis,
-    both faces within ``reach`` of the point), where the opening between the faces (the sum of
-    the two gaps) is within PINCH_TOLERANCE of its smallest value; and that smallest opening
-    (mm), which the holder closes before it pinches (collective). On the built-in hemisphere's
-    tools this is the ring r >= holder_inner_radius + holder_fillet_radius of holder_region."""
-    from mpi4py import MPI
-    above, below = holder.query(points, cutoff=reach), die.query(points, cutoff=reach)
-    facing = ((above.normal[:, 2] <= -FLAT_COSINE) & (below.normal[:, 2] >= FLAT_COSINE)
-              & (np.abs(above.gap) <= reach) & (np.abs(below.gap) <= reach))
-    opening = above.gap + below.gap
-    least = comm.allreduce(float(opening[facing].min()) if facing.any() else math.inf,
-                           op=MPI.MIN)
-    # no flat pinch anywhere: an empty region (HolderControl says so), opening 0
-    return facing & (opening <= least + PINCH_TOLERANCE), least if math.isfinite(least) else 0.0
-
-
-def holder_region(config):
-    """A function (P, 3) positions -> mask of the points under the holder's flat face, or None
-    (STEP tools: :func:`pinch_region` finds it on the tools)."""
-    tools, dims = tool_set(config)
-    if tools.kind == "hemisphere":
-        inner = dims.holder_inner_radius + dims.holder_fillet_radius
-        outer = dims.holder_outer_radius
-
-        def region(x):
-            r = np.hypot(x[:, 0], x[:, 1])
-            return (r >= inner) & (r <= outer) & (x[:, 2] > -dims.gap - ON_DIE_TOLERANCE)
-        return region
-    if tools.kind == "double_dome":
-        a = dims.dome_offset
-        opening = dims.holder_opening_radius + dims.holder_edge_radius
-
-        def region(x):
-            d = np.hypot(x[:, 0] - np.clip(x[:, 0], -a, a), x[:, 1])
-            return ((d >= opening) & (np.abs(x[:, 0]) <= dims.die_length / 2)
-                    & (np.abs(x[:, 1]) <= dims.die_width / 2)
-                    & (x[:, 2] > -dims.gap - ON_DIE_TOLERANCE))
-        return region
-    return None
-
-
-# --- point contributions --------------------------------------------------------------------------
-
-class ToolContact(PointContribution):
-    """Rigid tools in (smoothed) penalty contact with friction; the tools named in ``moving``
-    translate by (0, 0, -stroke(t)); the holder, when ``holder_control`` (a
-    :class:`HolderControl`) is set, is lowered by what it says (read by :meth:`set_load`)."""
-
-    name = "tools"
-
-    def __init__(self, surfaces: dict, moving: set, stroke: float, penalty: float,
-                 friction: float, regularisation: float, cutoff: float, smoothing: float = 0.0):
-        self.surfaces = surfaces
-        self.moving = set(moving)
-        self.stroke = float(stroke)
-        self.penalty, self.friction, self.regularisation = penalty, friction, regularisation
-        self.cutoff, self.smoothing = cutoff, float(smoothing)
-        self.holder_control = None
-        self.offsets = {name: np.zeros(3) for name in surfaces}
-        self.committed_offsets = dict(self.offsets)
-        self.last = {}
-
-    def setup(self, reference_points):
-        super().setup(reference_points)
-        self.committed_u = np.zeros((len(reference_points), 3))
-        self._u = self.committed_u
-        #: per tool, the tangential slip (mm) still held elastically in the stick zone at the
-        #: last converged step: friction's memory (:meth:`commit`)
-        self.elastic_slip = {name: np.zeros((len(reference_points), 3)) for name in self.surfaces}
-        self._trial_slip = {}
-
-    def set_load(self, t: float) -> None:
-        for name in self.surfaces:
-            down = self.stroke * t if name in self.moving else 0.0
-            if name == "holder" and self.holder_control is not None:
-                down += self.holder_control.lowering()
-            self.offsets[name] = np.array([0.0, 0.0, -down])
-
-    def evaluate(self, positions, displacements):
-        f = np.zeros_like(positions)
-        K = np.zeros(positions.shape + (3,))
-        self.last = {}
-        for name, surface in self.surfaces.items():
-            offset = self.offsets[name]
-            query = surface.query(positions, offset, cutoff=self.cutoff)
-            # the slip since the last converged step plus the elastic slip held then: friction
-            # with memory, so that a point drawn slowly over a tool reaches mu p whatever the
-            # step size (without it a point drawn by less than the slip regularisation per step
-            # never reaches mu p, and the forces depend on the steps; docs/forming-checks.md)
-            slip = (displacements - self.committed_u - (offset - self.committed_offsets[name])
-                    + self.elastic_slip[name])
-            response = traction(query.gap, query.normal, slip, self.penalty, self.friction,
-                                self.regularisation, touching_is_active=True,
-                                smoothing=self.smoothing)
-            f += response.traction
-            K -= response.tangent
-            self.last[name] = (query.gap, response)
-            self._trial_slip[name] = (slip, query.normal)
-        self._u = displacements
-        return f, K
-
-    def commit(self) -> None:
-        """The converged step becomes the reference of the next; each point keeps the part of
-        its tangential slip within the stick zone (:func:`drape.forming.contact.elastic_slip`)."""
-        self.committed_u = np.array(self._u, copy=True)
-        self.committed_offsets = {k: v.copy() for k, v in self.offsets.items()}
-        for name, (slip, n) in self._trial_slip.items():
-            self.elastic_slip[name] = elastic_slip(slip, n, self.last[name][1].pressure,
-                                                   self.regularisation)
-
-    def state(self) -> dict:
-        state = {"committed_u": self.committed_u,
-                 **{f"offset_{k}": v for k, v in self.committed_offsets.items()},
-                 **{f"elastic_slip_{k}": v for k, v in self.elastic_slip.items()}}
-        if self.holder_control is not None:
-            state["holder_target"] = np.array(self.holder_control.target)
-        return state
-
-    def load_state(self, state: dict) -> None:
-        self.committed_u = np.array(state["committed_u"], copy=True)
-        self._u = self.committed_u
-        for k in self.committed_offsets:
-            self.committed_offsets[k] = np.array(state[f"offset_{k}"], copy=True)
-            self.elastic_slip[k] = np.array(state[f"elastic_slip_{k}"], copy=True)
-        if self.holder_control is not None:
-            self.holder_control.target = float(state["holder_target"])
-
-
-class HolderControl:
-    """Force control of the rigid holder: its height for a total force F (N).
-
-    The flange of reference area A (under the holder's flat face) pinched between the die
-    (top at z = 0) and the holder (bottom at z = -d) settles midway, at a gap -d/2 from each,
-    where both push with the pressure p(-d/2) of the smoothed penalty; so d = -2 g(F' / A) with
-    g the inverse of the penalty law (:func:`drape.forming.contact.gap_for_pressure`). F' starts at
-    F
-    and after every converged step moves by half the difference between F and the measured
-    holder force (fabric thicker than flat where it wrinkles or bunches, the flange leaving the
-    flat face), which brings the measured force to F within a few steps. Where the fabric
-    pushes the holder elsewhere too (at its rim, or wrinkles rising under it), F' goes below
-    F, and below F_min = 1e-3 F the holder keeps lifting, by 2 (F_min - F') / (eps_N A), the
-    slope of the plain penalty's branch: a press's cushion lifts as far as the force needs.
-    Without the lift the holder would stop 2 g0 above the die, where the smoothed penalty's
-    pressure falls to zero, and could not rise far enough to bring the force down to F."""
-
-    GAIN = 0.5
-
-    def __init__(self, force: float, area: float, penalty: float, smoothing: float,
-                 opening: float = 0.0):
-        if area <= 0.0:
-            raise InputError("no blank under the blank holder", key="process.holder_force",
-                             value=force, expected="a blank reaching under the holder's flat "
-                             "face (STEP tools: a flat face of the holder facing one of the "
-                             "die, within 1 mm of the blank's plane z = 0), or holder_force = 0")
-        self.force, self.area, self.penalty, self.smoothing = force, area, penalty, smoothing
-        #: how far the holder travels before its face reaches the die's (STEP tools: the
-        #: opening between them where the blank lies in it, :func:`pinch_region`; 0 built-in)
-        self.opening = float(opening)
-        self.target = force
-
-    def lowering(self) -> float:
-        """d (mm): how far below the die's top face the holder's face is (negative: above);
-        continuous and increasing in the target force F'."""
-        least = 1e-3 * self.force
-        d = -2.0 * gap_for_pressure(max(self.target, least) / self.area, self.penalty,
-                                    self.smoothing)
-        return self.opening + d - 2.0 * max(least - self.target, 0.0) / (self.penalty * self.area)
-
-    def update(self, measured: float) -> None:
-        self.target += self.GAIN * (self.force - measured)
-
-
-class _Bracket:
-    """The holder targets F' whose measured force came closest to F from below (error F -
-    measured > 0) and from above (< 0), for :meth:`Forming.hold_force`'s regula falsi."""
-
-    def __init__(self):
-        self.below = self.above = None      # [target, error]
-        self.kept = None                    # which end the last new point did not replace
-
-    def add(self, target: float, error: float) -> None:
-        side = "below" if error > 0.0 else "above"
-        end = getattr(self, side)
-        if end is None or abs(error) < abs(end[1]) or self.closed:
-            setattr(self, side, [target, error])
-        other = "above" if side == "below" else "below"
-        if self.closed:
-            if self.kept == other:          # the other end kept twice running: halve its error
-                getattr(self, other)[1] *= 0.5
-            self.kept = other
-
-    @property
-    def closed(self) -> bool:
-        return self.below is not None and self.above is not None
-
-    def inside(self) -> float:
-        """The target where the line through the two ends meets F."""
-        (t0, e0), (t1, e1) = self.below, self.above
-        return t0 + e0 * (t1 - t0) / (e0 - e1)
 
 
 # --- the forming job ------------------------------------------------------------------------------
@@ -310,33 +61,22 @@ class Forming(JobPart):
     files = "force_stroke.csv/.png, the shear maps and summary.json"
     finish_on_root = False
 
-    def __init__(self, job, comm, log=None):
-        from drape.geometry.tools import (analytic_double_dome_tools, analytic_tools,
-                                          build_tools)
-        from drape.forming.surfaces import MeshedSurface
+    #: a forming blank is meshed centred on the tools' axis
+    centres_blank = True
+    #: a membrane without bending has no stiffness against wrinkling (docs/forming.md)
+    default_bending_rigidity = DEFAULT_FORMING_BENDING
 
+    def __init__(self, job, comm, log=None):
         self.job, self.comm = job, comm
         config = job.config
         self.config = config
         self.process = config.process
+        #: the problem carries the blank's inertia when the process gives it an areal density
+        self.inertial = self.process.areal_density > 0
         tools, dims = tool_set(config)
         self.kind = tools.kind
         self.stroke = stroke_of(config)
-        say = log or (lambda *_: None)
-        if tools.kind == "hemisphere":
-            surfaces = analytic_tools(dims)
-            self.tool_description = "hemisphere tools (exact surfaces of revolution)"
-        elif tools.kind == "double_dome":
-            surfaces = analytic_double_dome_tools(dims)
-            self.tool_description = "double-dome tools (exact rolling-ball constructions)"
-        else:
-            started = time.perf_counter()
-            meshed = build_tools(tools, comm=comm)
-            surfaces = {name: MeshedSurface(surface, margin=TOOL_LIST_MARGIN)
-                        for name, surface in meshed.items()}
-            self.tool_description = (f"{tools.kind} tools meshed by gmsh (" + ", ".join(
-                f"{name} {s.n_triangles} triangles" for name, s in surfaces.items())
-                + f", {time.perf_counter() - started:.1f} s)")
+        surfaces, self.tool_description = tool_surfaces(tools, dims, comm)
         self.holder_region = holder_region(config)
         #: "force", "position" or None (:func:`holder_mode`)
         self.holder_mode = holder_mode(config)
@@ -357,20 +97,24 @@ class Forming(JobPart):
         #: force control of the holder (None: no holder, or a position-controlled STEP one)
         self.holder = None
         self._holder_force_controlled = self.holder_mode == "force" and "holder" in surfaces
-        self.force_rows = []
         #: (step, measured force) of the converged steps off the target by > HOLDER_WARNING
         self.holder_warnings = []
-        self.say = say
-        holder = {"force": f"holder force {self.process.holder_force:g} N (force-controlled)",
+        self.say = log or (lambda *_: None)
+        self._describe("holder" in surfaces)
+
+    def _describe(self, has_holder: bool) -> None:
+        """The log's line on the tools, the holder, the contact and the inertia."""
+        process, contact = self.process, self.config.contact
+        holder = {"force": f"holder force {process.holder_force:g} N (force-controlled)",
                   "position": "holder position-controlled (where its STEP file puts it; its "
                               "force is measured, process.holder_force is not applied)",
-                  None: "no holder"}[self.holder_mode if "holder" in surfaces else None]
-        say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, {holder}, "
-            f"penalty {self.penalty:.4g} N/mm^3 (smoothed over "
-            f"{self.smoothing:.3g} mm), friction {contact.friction:g}"
-            + (f", inertia {self.process.areal_density:g} kg/m^2, the punch at "
-               f"{self.process.punch_speed:g} m/s after {self.process.punch_ramp:g} mm"
-               if self.process.areal_density > 0 else ""))
+                  None: "no holder"}[self.holder_mode if has_holder else None]
+        self.say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, {holder}, "
+                 f"penalty {self.penalty:.4g} N/mm^3 (smoothed over "
+                 f"{self.smoothing:.3g} mm), friction {contact.friction:g}"
+                 + (f", inertia {process.areal_density:g} kg/m^2, the punch at "
+                    f"{process.punch_speed:g} m/s after {process.punch_ramp:g} mm"
+                    if process.areal_density > 0 else ""))
 
     @property
     def title(self) -> str:
@@ -448,19 +192,21 @@ class Forming(JobPart):
         """The holder's force within its tolerance: :meth:`hold_force`."""
         return self.hold_force(t, solve, result)
 
-    def measure(self, row: dict, rows: list, force) -> None:
+    def measure(self, record, records: list, force) -> None:
         """A converged step's forming columns: the tools' forces and contact (:meth:`tool_row`),
         the holder's correction for the next step, the punch's work (trapezoidal in the stroke),
-        which is the forming job's external work, and the shares of it."""
-        row.update(self.tool_row(row["t"], converged=row["step"] > 0))
-        self.control_holder(row)
-        before = rows[-1] if rows else {"punch_work": 0.0, "punch_force": 0.0, "stroke": 0.0}
-        row["punch_work"] = before["punch_work"] + 0.5 * (
-            before["punch_force"] + row["punch_force"]) * (row["stroke"] - before["stroke"])
-        row["external_work"] += row["punch_work"]
-        work = abs(row["external_work"])
-        row["regularisation_share"] = row["regularisation_work"] / work if work != 0.0 else 0.0
-        row["bending_share"] = row["bending_energy"] / work if work != 0.0 else 0.0
+        which the record's external work includes (and so its regularisation share), and the
+        bending energy's share of it."""
+        columns = record.columns
+        columns.update(self.tool_row(record.t, converged=record.step > 0))
+        self.control_holder(record)
+        before = (records[-1].columns if records
+                  else {"punch_work": 0.0, "punch_force": 0.0, "stroke": 0.0})
+        columns["punch_work"] = before["punch_work"] + 0.5 * (
+            before["punch_force"] + columns["punch_force"]) * (columns["stroke"] - before["stroke"])
+        record.external_work += columns["punch_work"]
+        work = abs(record.external_work)
+        columns["bending_share"] = record.bending_energy / work if work != 0.0 else 0.0
 
     def tool_row(self, t: float, converged: bool = True) -> dict:
         """Forces (N), penetration (mm), contact areas (mm^2) at the converged state (collective).
@@ -480,7 +226,6 @@ class Forming(JobPart):
         row["max_penetration"] = comm.allreduce(max(penetration, 0.0), op=MPI.MAX)
         if self.holder is not None:
             row["holder_lowering"] = self.holder.lowering()
-        self.force_rows.append(row)
         return row
 
     def tool_force(self, name: str) -> float:
@@ -511,7 +256,7 @@ class Forming(JobPart):
         start, iterations, seconds = holder.target, result.iterations, result.seconds
         last = None                     # (target, measured) of the solve before
         closest = None                  # (|error|, target, displacement, result) of the best solve
-        bracket = _Bracket()
+        bracket = Bracket()
         for _ in range(HOLDER_CORRECTIONS):
             measured = self.tool_force("holder")
             error = holder.force - measured
@@ -545,18 +290,19 @@ class Forming(JobPart):
                 self.problem.evaluate()     # the law's and the tools' state there again
         return dataclasses.replace(result, iterations=iterations, seconds=seconds)
 
-    def control_holder(self, row: dict) -> None:
+    def control_holder(self, record) -> None:
         """After a converged step (not the initial state): correct the holder's height for the
         next step from the force it measured (:class:`HolderControl`)."""
-        if self.holder is not None and row["t"] > 0:
-            self.holder.update(row["holder_force"])
-            target, measured = self.process.holder_force, row["holder_force"]
+        if self.holder is not None and record.t > 0:
+            measured = record.columns["holder_force"]
+            self.holder.update(measured)
+            target = self.process.holder_force
             if abs(measured - target) > HOLDER_WARNING * target:
-                self.holder_warnings.append((row["step"], measured))
-                self.say(f"drape run: warning: step {row['step']} (stroke {row['stroke']:.4g} "
-                         f"mm): the holder force is {measured:.5g} N, "
-                         f"{100 * (measured / target - 1):+.1f} % off its target "
-                         f"{target:g} N (process.holder_force)")
+                self.holder_warnings.append((record.step, measured))
+                self.say(f"drape run: warning: step {record.step} (stroke "
+                         f"{record.columns['stroke']:.4g} mm): the holder force is "
+                         f"{measured:.5g} N, {100 * (measured / target - 1):+.1f} % off its "
+                         f"target {target:g} N (process.holder_force)")
 
     def contact_pressure(self) -> np.ndarray:
         """Contact pressure of all tools (N/mm^2, holder included) averaged over each local cell."""
@@ -567,11 +313,10 @@ class Forming(JobPart):
         return (p.reshape(-1, self.n_extra) * A).sum(axis=1) / A.sum(axis=1)
 
     # --- at the end -------------------------------------------------------------------------------
-    def _holder_summary(self, rows: list) -> dict:
+    def _holder_summary(self, measured: list) -> dict:
         """summary.json's holder entries: how it was driven, the force it was driven to (force
-        control only) and the force measured over the converged steps (never the config's
+        control only) and the ``measured`` force over the converged steps (never the config's
         force where it was not applied)."""
-        measured = [r["holder_force"] for r in rows[1:] if "holder_force" in r]
         mode = self.holder_mode if "holder" in self.tool_contact.surfaces else None
         entries = {"holder_control": mode or "none"}
         if mode == "force":
@@ -585,8 +330,40 @@ class Forming(JobPart):
             entries["holder_force_measured_N"] = [float(min(measured)), float(max(measured))]
         return entries
 
+    def _run_summary(self, records: list, seconds: float, measured: list) -> dict:
+        """summary.json's entries on the job and the run (rank 0): the tools, the stroke, the
+        punch force (N), the shear oscillation, the holder, the inertia, the steps."""
+        problem, process, last = self.problem, self.process, records[-1]
+        forces = [r.columns.get("punch_force", 0.0) for r in records]
+        return {
+            "title": self.title, "blank": describe_blank(self.config.blank),
+            "tools": self.kind,
+            "yarn_angle_deg": self.config.blank.yarn_angle,
+            "stroke_mm": last.columns.get("stroke", 0.0), "configured_stroke_mm": self.stroke,
+            "tools_full_stroke_mm": full_stroke(self.config),
+            "max_punch_force_N": float(max(forces)),
+            # cell-to-cell shear oscillation (drape/reports/oscillation.py, docs/blanks.md)
+            "shear_oscillation_deg": float(last.shear_oscillation_deg),
+            "max_shear_oscillation_deg": float(max(r.shear_oscillation_deg for r in records)),
+            "shear_oscillation_warning_deg": OSCILLATION_WARNING,
+            "punch_force_at_end_N": float(forces[-1]),
+            **self._holder_summary(measured),
+            # the blank's inertia: a dynamic run's forces depend on these (docs/forming.md)
+            "areal_density_kg_per_m2": process.areal_density,
+            "punch_speed_m_per_s": process.punch_speed,
+            "punch_ramp_mm": process.punch_ramp,
+            "max_penetration_mm": float(max(r.columns.get("max_penetration", 0.0)
+                                            for r in records)),
+            "penalty_N_per_mm3": self.penalty,
+            "regularisation_share": last.regularisation_share,
+            "steps": last.step,
+            "newton_iterations": int(sum(r.newton_iterations for r in records)),
+            "cutbacks": int(sum(r.cutbacks for r in records)),
+            "wall_time_s": seconds, "ranks": self.comm.size,
+            "cells": problem.mesh.topology.index_map(problem.mesh.topology.dim).size_global,
+        }
 
-    def finish(self, folder: Path, rows: list, seconds: float) -> dict:
+    def finish(self, folder: Path, records: list, seconds: float) -> dict:
         """force_stroke.csv/.png, shear maps, summary.json (collective; rank 0 writes)."""
         from drape.forming import reports
         problem = self.problem
@@ -594,7 +371,8 @@ class Forming(JobPart):
         cells = reports.gather_cells(problem)
         summary = reports.shear_summary(problem, locking, self.comm)
         summary.update(reports.draw_in(problem, self.config.blank, self.comm))
-        measured = [r["holder_force"] for r in rows[1:] if "holder_force" in r]
+        measured = [r.columns["holder_force"] for r in records[1:]
+                    if "holder_force" in r.columns]
         if measured:
             target = (f"its target {self.process.holder_force:g} N; "
                       f"{len(self.holder_warnings)} step(s) off it by more than "
@@ -603,36 +381,10 @@ class Forming(JobPart):
             self.say(f"drape run: holder force measured {min(measured):.5g} to "
                      f"{max(measured):.5g} N over the converged steps ({target})")
         if self.comm.rank == 0:
-            forces = [r.get("punch_force", 0.0) for r in rows]
-            summary.update({
-                "title": self.title, "blank": describe_blank(self.config.blank),
-                "tools": self.kind,
-                "yarn_angle_deg": self.config.blank.yarn_angle,
-                "stroke_mm": rows[-1].get("stroke", 0.0), "configured_stroke_mm": self.stroke,
-                "tools_full_stroke_mm": full_stroke(self.config),
-                "max_punch_force_N": float(max(forces)),
-                # cell-to-cell shear oscillation (drape/reports/oscillation.py, docs/blanks.md)
-                "shear_oscillation_deg": float(rows[-1].get("shear_oscillation_deg", 0.0)),
-                "max_shear_oscillation_deg": float(max(r.get("shear_oscillation_deg", 0.0)
-                                                       for r in rows)),
-                "shear_oscillation_warning_deg": OSCILLATION_WARNING,
-                "punch_force_at_end_N": float(forces[-1]),
-                **self._holder_summary(rows),
-                # the blank's inertia: a dynamic run's forces depend on these (docs/forming.md)
-                "areal_density_kg_per_m2": self.process.areal_density,
-                "punch_speed_m_per_s": self.process.punch_speed,
-                "punch_ramp_mm": self.process.punch_ramp,
-                "max_penetration_mm": float(max(r.get("max_penetration", 0.0) for r in rows)),
-                "penalty_N_per_mm3": self.penalty,
-                "regularisation_share": rows[-1].get("regularisation_share", 0.0),
-                "steps": rows[-1]["step"], "newton_iterations": int(sum(
-                    r.get("newton_iterations", 0) for r in rows)),
-                "cutbacks": int(sum(r.get("cutbacks", 0) for r in rows)),
-                "wall_time_s": seconds, "ranks": self.comm.size,
-                "cells": problem.mesh.topology.index_map(problem.mesh.topology.dim).size_global,
-            })
+            summary.update(self._run_summary(records, seconds, measured))
             summary.update(reports.strip_summary(cells, self.config.blank.yarn_angle))
             folder = Path(folder)
+            rows = [record.row() for record in records]     # as in steps.csv
             reports.write_force_stroke(folder, rows)
             reports.plot_force_stroke(folder, rows, self.title)
             reports.plot_shear_maps(folder, cells, locking, self.title)

@@ -154,6 +154,8 @@ def edge_draw_in(X, u, targets: dict, comm, tie: float = 1e-6) -> dict[str, floa
 # --- rank 0 writers -------------------------------------------------------------------------------
 
 def write_force_stroke(folder: Path, rows: list) -> None:
+    """force_stroke.csv: FORCE_STROKE_COLUMNS (those the job has) of steps.csv's ``rows``
+    (drape.step_record.StepRecord.row), rank 0."""
     columns = [c for c in FORCE_STROKE_COLUMNS if c in rows[-1]]
     write_table(Path(folder) / FORCE_STROKE_FILE, columns, rows)
 

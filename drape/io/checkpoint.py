@@ -7,43 +7,34 @@ point of the rank are matched to their points, other arrays are the same on ever
 committed and the previous displacement, the ledgers of
 external and regularisation work (with the prescribed forces and displacements their next
 increment starts from), the step number, load factor t, the step size the loop proposes next,
-the rows written so far, and the effective config and material it was made with.
+the step records so far (as steps.csv's rows, :meth:`drape.step_record.StepRecord.row`), and
+the effective config and material it was made with.
 
 The values are gathered to rank 0 into one file, each node's and cell's under a number that
-does not depend on the partition (:class:`Layout`: gmsh's node index, DOLFINx's original cell
-index); a resume finds its nodes and cells there by number and checks their coordinates (to
-1e-8 of the blank's size): another mesh is an :class:`~drape.errors.InputError`, another
-partition is not. The number of ranks must be the same (the resumed run then gets the same
-partition, drape.fe.mesh, and continues with the same numbers). The file is written to a temporary
-name and renamed, so a kill or a full disk while writing leaves the previous checkpoint intact.
-
-Resuming rewinds the folder to the checkpoint (:func:`rewind_outputs`): ``steps.csv`` is
-rewritten from the checkpoint's rows, the XDMF time series (from its copy ``checkpoint.xdmf``,
-taken with the checkpoint) loses the grids after its t, and its HDF5 file (from its copy
-``checkpoint.h5``: a hard kill during a write may have left ``fields.h5`` unreadable) is
-renamed ``fields-<k>.h5`` (the XDMF follows) so that the resumed run writes into a fresh
-``fields.h5`` and never meets a dataset of a step written after the checkpoint.
+does not depend on the partition (:class:`drape.io.layout.Layout`: gmsh's node index,
+DOLFINx's original cell index); a resume finds its nodes and cells there by number and checks
+their coordinates (to 1e-8 of the blank's size): another mesh is an
+:class:`~drape.errors.InputError`, another partition is not. The number of ranks must be the
+same (the resumed run then gets the same partition, drape.fe.mesh, and continues with the same
+numbers). The file is written to a temporary name and renamed (:mod:`drape.io.atomic`), so a
+kill or a full disk while writing leaves the previous checkpoint intact. Resuming rewinds the
+folder's other files to the checkpoint: :func:`drape.io.rewind.rewind_outputs`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
 from drape.errors import InputError
+from drape.io.atomic import replace_atomically, replace_copy, replace_text, savez
+from drape.io.layout import Layout, coordinate_tolerance, merge_ranks, pick_rows
+from drape.io.rewind import H5_COPY, XDMF_COPY
 
 CHECKPOINT_FILE = "checkpoint.npz"
-#: a copy of fields.xdmf taken with each checkpoint (dolfinx rewrites the XDMF text in place
-#: after every step: a hard kill at that moment leaves it empty)
-XDMF_COPY = "checkpoint.xdmf"
-#: a copy of fields.h5 taken with each checkpoint: a hard kill while a step's fields are being
-#: written can leave the file's group index unreadable, the checkpointed steps' data with it
-H5_COPY = "checkpoint.h5"
 VERSION = 4
 #: config keys a resume may change (they do not change the numbers)
 FREE_KEYS = ("title", "material", "output.folder", "output.checkpoint_every")
@@ -80,11 +71,13 @@ def differences(saved: dict, now: dict) -> list[str]:
 
 
 class Checkpoints:
-    """Writes and reads the checkpoint of a run. ``rows`` and ``ledger`` are
-    run_job's own (mutable) records: saved as they are, filled in place on resume."""
+    """Writes and reads the checkpoint of a run. ``records`` (the step loop's
+    drape.step_record.StepRecord list) and ``ledger`` (its drape.step_record.WorkLedger) are
+    the loop's own: saved as they are, filled in place on resume; ``read_row`` turns a saved
+    steps.csv row back into a record."""
 
-    def __init__(self, folder, problem, job, every: int, rows: list,
-                 ledger: dict, prescribed_dofs=()):
+    def __init__(self, folder, problem, job, every: int, records: list, ledger,
+                 prescribed_dofs=(), read_row=None):
         self.folder = Path(folder)
         self.layout = Layout(problem)
         #: the owned, unrolled dofs of the ledger's arrays (PrescribedMotion.prescribed_dofs)
@@ -94,7 +87,8 @@ class Checkpoints:
         self.comm = problem.comm
         self.every = every
         self.signature = signature(job)
-        self.rows, self.ledger = rows, ledger
+        self.records, self.ledger = records, ledger
+        self.read_row = read_row
         self.last = None          # the last accepted solver Step
         self.saved_step = None    # number of the step in the file
         self.disk = None          # a drape.io.disk.Disk: the ranks agree on write errors
@@ -129,12 +123,12 @@ class Checkpoints:
             meta = {"version": VERSION, "ranks": self.comm.size, "step": step.number,
                     "t": step.t, "dt": step.next_dt,
                     "t_committed": p.t_committed, "t_previous": p.t_previous,
-                    "external_work": self.ledger["external"],
-                    "regularisation_work": self.ledger["regularisation"],
-                    "rows": self.rows,
+                    "external_work": self.ledger.external,
+                    "regularisation_work": self.ledger.regularisation,
+                    "rows": [record.row() for record in self.records],
                     "signature": self.signature}
             arrays = {"meta": np.array(json.dumps(meta, default=_json_default))}
-            arrays.update(_merge(parts))
+            arrays.update(merge_ranks(parts))
         else:
             arrays = None
 
@@ -146,10 +140,10 @@ class Checkpoints:
             # step than the checkpoint's, which hold all its data; never the other way round
             try:
                 if xdmf.is_file():
-                    _replace_text(self.folder / XDMF_COPY, xdmf.read_text())
+                    replace_text(self.folder / XDMF_COPY, xdmf.read_text())
                 if h5.is_file():
-                    _replace_copy(h5, self.folder / H5_COPY)
-                _replace_atomically(self.path, lambda stream: _savez(stream, arrays))
+                    replace_copy(h5, self.folder / H5_COPY)
+                replace_atomically(self.path, lambda stream: savez(stream, arrays))
             except OSError:
                 if not self.path.is_file():     # copies of no checkpoint: space wasted
                     (self.folder / XDMF_COPY).unlink(missing_ok=True)
@@ -195,8 +189,8 @@ class Checkpoints:
                 else:
                     global_values[f"contribution{i}.{key}"] = value
         dofs = np.asarray(self.prescribed_dofs, dtype=np.int64)
-        prescribed = {"f": _array(self.ledger["f"]), "g": _array(self.ledger["g"])}
-        if self.ledger["f"] is None:        # before the first step: no ledger yet
+        prescribed = {"f": _array(self.ledger.f), "g": _array(self.ledger.g)}
+        if self.ledger.f is None:        # before the first step: no ledger yet
             prescribed = {}
             dofs = dofs[:0]
         return {"nodes": (layout.node_key[:owned], nodes),
@@ -206,9 +200,33 @@ class Checkpoints:
 
     # --- reading ----------------------------------------------------------------------------
     def load(self):
-        """Collective: read the checkpoint into the problem and the records; returns the
-        step, t and next step size to continue from. InputError (on every rank) if there is no
-        usable checkpoint, the config, material or ranks differ, or the mesh does."""
+        """Collective: read the checkpoint into the problem, the ledger and the records;
+        returns the step, t and next step size to continue from. InputError (on every rank)
+        if there is no usable checkpoint, the config, material or ranks differ, or the mesh
+        does."""
+        meta = self._shared_meta()
+        with np.load(self.path) as data:
+            saved = {k: data[k] for k in data.files if k != "meta"}
+        nodes, cells = self._find_mesh(saved)
+        p = self.problem
+        p.u.x.array[:] = nodes["u"].ravel()
+        p.u_committed.x.array[:] = nodes["u"].ravel()
+        p.u_previous.x.array[:] = nodes["u_previous"].ravel()
+        p.t_committed = float(meta["t_committed"])
+        p.t_previous = None if meta["t_previous"] is None else float(meta["t_previous"])
+        self._restore_points(saved, cells)
+        ledger_f, ledger_g = self._prescribed(saved)
+        p._evaluated_at = None
+        p.evaluate()
+        ledger = self.ledger
+        ledger.external, ledger.regularisation = meta["external_work"], meta["regularisation_work"]
+        ledger.f, ledger.g = ledger_f, ledger_g
+        self.records[:] = [self.read_row(row) for row in meta["rows"]]
+        self.saved_step = meta["step"]
+        return meta["step"], meta["t"], meta["dt"]
+
+    def _shared_meta(self) -> dict:
+        """The checkpoint's meta data, read and checked on rank 0, on every rank."""
         error, meta = None, None
         if self.comm.rank == 0:
             try:
@@ -218,20 +236,23 @@ class Checkpoints:
         error = self.comm.bcast(error, root=0)
         if error is not None:
             raise error
-        meta = self.comm.bcast(meta, root=0)
-        with np.load(self.path) as data:
-            saved = {k: data[k] for k in data.files if k != "meta"}
+        return self.comm.bcast(meta, root=0)
+
+    def _find_mesh(self, saved: dict):
+        """This rank's nodes and cells in the checkpoint ({name: rows} each, ghost nodes too),
+        their coordinates checked; InputError if the mesh is another."""
         p, layout = self.problem, self.layout
-        nodes, node_mismatch = _pick(saved, "nodes", layout.node_key)   # ghosts too
-        cells, cell_mismatch = _pick(saved, "cells", layout.cell_key[:layout.n_cells])
+        nodes, node_mismatch = pick_rows(saved, "nodes", layout.node_key)
+        cells, cell_mismatch = pick_rows(saved, "cells", layout.cell_key[:layout.n_cells])
         problems = []
         if nodes is not None:
             X = p.V.tabulate_dof_coordinates()
-            node_mismatch += int((np.abs(nodes["xyz"] - X).max(axis=1) > _tolerance(X)).sum())
+            node_mismatch += int((np.abs(nodes["xyz"] - X).max(axis=1)
+                                  > coordinate_tolerance(X)).sum())
         if cells is not None:
             x = p.point_coordinates.reshape(layout.n_cells, -1)
             cell_mismatch += int((np.abs(cells["points"] - x).max(axis=1)
-                                  > _tolerance(x)).sum()) if x.size else 0
+                                  > coordinate_tolerance(x)).sum()) if x.size else 0
         node_mismatch = self.comm.allreduce(node_mismatch)
         cell_mismatch = self.comm.allreduce(cell_mismatch)
         if node_mismatch:
@@ -243,11 +264,11 @@ class Checkpoints:
             raise InputError("the checkpoint was made with another mesh: " + "; ".join(problems),
                              source=str(self.path), expected="the mesh of the interrupted run "
                              "(the same blank and mesh keys); or --overwrite to start over")
-        p.u.x.array[:] = nodes["u"].ravel()
-        p.u_committed.x.array[:] = nodes["u"].ravel()
-        p.u_previous.x.array[:] = nodes["u_previous"].ravel()
-        p.t_committed = float(meta["t_committed"])
-        p.t_previous = None if meta["t_previous"] is None else float(meta["t_previous"])
+        return nodes, cells
+
+    def _restore_points(self, saved: dict, cells: dict) -> None:
+        """The law's state and every point contribution's, from this rank's cells."""
+        p, layout = self.problem, self.layout
         for name, function in p.law_state_functions().items():
             if f"law.{name}" not in cells:
                 raise InputError(f"the checkpoint has no law state '{name}' (made before "
@@ -264,23 +285,20 @@ class Checkpoints:
             state.update({k[len(f"global.{prefix}"):]: v for k, v in saved.items()
                           if k.startswith(f"global.{prefix}")})
             contribution.load_state(state)
+
+    def _prescribed(self, saved: dict):
+        """The ledger's prescribed forces and displacements on this rank's prescribed dofs
+        (None, None before the first step)."""
+        if "prescribed.f" not in saved:
+            return None, None
         dofs = np.asarray(self.prescribed_dofs, dtype=np.int64)
-        ledger_f = ledger_g = None
-        if "prescribed.f" in saved:
-            prescribed, missing = _pick(saved, "prescribed",
-                                        layout.node_key[dofs // 3] * 3 + dofs % 3)
-            if self.comm.allreduce(missing):
-                raise InputError("the checkpoint's prescribed boundary differs from this run's",
-                                 source=str(self.path), expected="the mesh and boundaries of "
-                                 "the interrupted run; or --overwrite to start over")
-            ledger_f, ledger_g = prescribed["f"].ravel(), prescribed["g"].ravel()
-        p._evaluated_at = None
-        p.evaluate()
-        self.ledger.update(external=meta["external_work"],
-                           regularisation=meta["regularisation_work"], f=ledger_f, g=ledger_g)
-        self.rows[:] = meta["rows"]
-        self.saved_step = meta["step"]
-        return meta["step"], meta["t"], meta["dt"]
+        prescribed, missing = pick_rows(saved, "prescribed",
+                                        self.layout.node_key[dofs // 3] * 3 + dofs % 3)
+        if self.comm.allreduce(missing):
+            raise InputError("the checkpoint's prescribed boundary differs from this run's",
+                             source=str(self.path), expected="the mesh and boundaries of "
+                             "the interrupted run; or --overwrite to start over")
+        return prescribed["f"].ravel(), prescribed["g"].ravel()
 
     def _read_meta(self) -> dict:
         if not self.path.is_file():
@@ -309,170 +327,6 @@ class Checkpoints:
                                       "interrupted run; or --overwrite to start over")
         return meta
 
-
-
-# --- partition-independent keys -------------------------------------------------------------
-
-class Layout:
-    """Global numbers of this rank's nodes and cells that do not depend on the partition: a
-    node's index in gmsh's mesh (the geometry's input index) and a cell's (DOLFINx's original
-    cell index). A checkpoint stores every value under them, so that a resume restores each
-    node and quadrature point from the checkpoint's entry of the same number whatever rank
-    holds it, and compares coordinates (to 1e-8 of the blank's size) to tell another mesh."""
-
-    def __init__(self, problem):
-        msh, V = problem.mesh, problem.V
-        index_map = V.dofmap.index_map
-        self.n_owned_nodes = index_map.size_local
-        inputs = np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
-        self.node_key = np.empty(index_map.size_local + index_map.num_ghosts, dtype=np.int64)
-        # P1 dofs and geometry nodes share the cells' vertex order
-        self.node_key[V.dofmap.list.array] = inputs[msh.geometry.dofmap.array]
-        self.cell_key = np.asarray(msh.topology.original_cell_index, dtype=np.int64)
-        self.n_cells = problem.n_cells
-
-    def _cell_index(self, function) -> np.ndarray:
-        """Indices into ``function.x.array`` of each owned cell's values, (cells, values)."""
-        dofmap = function.function_space.dofmap
-        bs = dofmap.index_map_bs
-        dofs = dofmap.list.array.reshape(len(self.cell_key), -1)[: self.n_cells]
-        return (dofs[:, :, None] * bs + np.arange(bs)).reshape(self.n_cells, -1)
-
-    def cell_rows(self, function) -> np.ndarray:
-        return function.x.array[self._cell_index(function)]
-
-    def set_cell_rows(self, function, rows) -> None:
-        """Owned cells only: the law's ghost entries are never read or written (membrane.py)."""
-        function.x.array[self._cell_index(function)] = rows
-
-
-def _merge(parts) -> dict[str, np.ndarray]:
-    """Rank 0: every rank's :meth:`Checkpoints._local_state` as one array per name and family,
-    rows sorted by key ("<family>.key", "<family>.<name>"); "global.<name>" from rank 0."""
-    arrays = {f"global.{k}": v for k, v in parts[0]["global"].items()}
-    for family in ("nodes", "cells", "prescribed"):
-        keys = np.concatenate([part[family][0] for part in parts])
-        order = np.argsort(keys, kind="stable")
-        arrays[f"{family}.key"] = keys[order]
-        for name in parts[0][family][1]:
-            rows = [np.asarray(part[family][1][name]) for part in parts]
-            width = max([r.size // len(r) for r in rows if len(r)] or [1])
-            arrays[f"{family}.{name}"] = np.concatenate([r.reshape(len(r), width)
-                                                         for r in rows])[order]
-    return arrays
-
-
-def _pick(saved, family, keys):
-    """{name: the rows of ``keys``} from a checkpoint's family, and how many keys it lacks."""
-    stored = saved.get(f"{family}.key")
-    if stored is None:
-        return None, len(keys)
-    index = np.searchsorted(stored, keys)
-    index = np.minimum(index, max(len(stored) - 1, 0))
-    found = (stored[index] == keys) if len(stored) else np.zeros(len(keys), bool)
-    index = np.where(found, index, 0)
-    prefix = f"{family}."
-    rows = {k[len(prefix):]: (v[index] if len(v) else v[:0]) for k, v in saved.items()
-            if k.startswith(prefix) and k != f"{family}.key"}
-    return rows, int((~found).sum())
-
-
-def _tolerance(x) -> float:
-    return 1e-8 * max(1.0, float(np.abs(x).max())) if x.size else 0.0
-
-
-# --- the results folder back to the checkpoint ---------------------------------------------
-
-def rewind_outputs(folder, rows: list, t: float, comm) -> None:
-    """Collective (rank 0 works): steps.csv is rewritten with ``rows`` (the checkpoint's);
-    fields.xdmf (from the checkpoint's copy) keeps the grids up to ``t``, its fields.h5 (the
-    checkpoint's copy where there is one) becomes fields-<k>.h5 (the XDMF follows), and the
-    XDMF copy becomes the rewound XDMF, so that a second resume from the same checkpoint finds
-    the data where the first one put it."""
-    import csv
-
-    from drape.io.writer import FIELDS_FILE, STEPS_FILE, _text
-    folder = Path(folder)
-    if comm.rank == 0:
-        text = io.StringIO(newline="")
-        writer = csv.writer(text)
-        writer.writerow(list(rows[0]))
-        for row in rows:
-            writer.writerow([_text(row.get(name, "")) for name in rows[0]])
-        _replace_text(folder / STEPS_FILE, text.getvalue())
-        xdmf, copy, h5_copy = folder / FIELDS_FILE, folder / XDMF_COPY, folder / H5_COPY
-        if copy.is_file():
-            _replace_text(xdmf, copy.read_text())
-        if h5_copy.is_file():
-            os.replace(h5_copy, xdmf.with_suffix(".h5"))
-        if xdmf.is_file():
-            trim_xdmf(xdmf, t)
-            _replace_text(copy, xdmf.read_text())
-    comm.barrier()
-
-
-def trim_xdmf(path: Path, t: float) -> None:
-    """Drop every time-series grid after t; move the HDF5 file aside as <stem>-<k>.h5."""
-    import xml.etree.ElementTree as ET
-    ET.register_namespace("xi", "http://www.w3.org/2001/XInclude")
-    tree = ET.parse(path)
-    for collection in tree.getroot().iter("Grid"):
-        if collection.get("GridType") != "Collection":
-            continue
-        for grid in list(collection.findall("Grid")):
-            time = grid.find("Time")
-            if time is not None and float(time.get("Value")) > t:
-                collection.remove(grid)
-    h5 = path.with_suffix(".h5")
-    if h5.is_file():
-        k = 1
-        while path.with_name(f"{path.stem}-{k}.h5").exists():
-            k += 1
-        part = path.with_name(f"{path.stem}-{k}.h5")
-        for item in tree.getroot().iter("DataItem"):
-            if item.text and item.text.strip().startswith(f"{h5.name}:"):
-                item.text = item.text.strip().replace(f"{h5.name}:", f"{part.name}:", 1)
-        os.replace(h5, part)
-    buffer = io.BytesIO()
-    tree.write(buffer, encoding="utf-8", xml_declaration=True)
-    _replace_text(path, buffer.getvalue().decode())
-
-
-def _replace_atomically(path: Path, write) -> None:
-    """``write(stream)`` into a temporary file beside ``path`` (binary), flush it to disk, then
-    rename it onto ``path``: a kill at any moment leaves either the old file or the new one."""
-    temporary = path.with_name(f".{path.name}.tmp")
-    try:
-        with open(temporary, "wb") as stream:
-            write(stream)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(temporary, path)
-    except BaseException:       # a full disk, say: no partial file left behind
-        temporary.unlink(missing_ok=True)
-        raise
-
-
-def _replace_text(path: Path, text: str) -> None:
-    _replace_atomically(path, lambda stream: stream.write(text.encode()))
-
-
-def _replace_copy(source: Path, target: Path) -> None:
-    """Copy ``source`` onto ``target`` atomically."""
-    import shutil
-
-    def copy(stream):
-        with open(source, "rb") as original:
-            shutil.copyfileobj(original, stream, 1 << 20)
-    _replace_atomically(target, copy)
-
-
-def _savez(stream, arrays) -> None:
-    """np.savez into memory first, then to ``stream``: a failed write leaves no half-closed
-    zip file behind (whose clean-up prints a traceback)."""
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)
-    stream.write(buffer.getbuffer())
 
 
 def _array(value) -> np.ndarray:

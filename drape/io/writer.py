@@ -29,7 +29,7 @@ class ResultsWriter:
                  snapshot: str = "final", append: bool = False,
                  extra_cell_fields: dict | None = None):
         """``append``: continue the files of a resumed run (rewound to its checkpoint by
-        :func:`drape.io.checkpoint.rewind_outputs`) instead of starting them.
+        :func:`drape.io.rewind.rewind_outputs`) instead of starting them.
         ``extra_cell_fields``: {name: function returning one value per local cell}, written
         as DG0 fields next to the law's (e.g. the contact pressure of a forming job)."""
         from dolfinx import fem, io
@@ -69,12 +69,13 @@ class ResultsWriter:
         self.remember_fields()
 
     # --- per step ---------------------------------------------------------------------------------
-    def write_step(self, row: dict, t: float, *, last: bool = False) -> None:
-        """Append the CSV row; write the fields if due (every ``xdmf_every`` steps, and the last).
-        If the fields fail (a full disk), the row is cut off again."""
-        end = self._write_row(row)
+    def write_step(self, record, t: float, *, last: bool = False) -> None:
+        """Append the step's row (a drape.step_record.StepRecord) to steps.csv; write the fields
+        if due (every ``xdmf_every`` steps, and the last). If the fields fail (a full disk), the
+        row is cut off again."""
+        end = self._write_row(record.row())
         try:
-            due = last or row["step"] % self.xdmf_every == 0
+            due = last or record.step % self.xdmf_every == 0
             if self.xdmf and due:
                 self.write_fields(t)
             if self.snapshot == "every" or (self.snapshot == "final" and last):
@@ -103,7 +104,7 @@ class ResultsWriter:
                 self._stream = path.open("wb", buffering=0)
                 writer.writerow(self._columns)
             self._csv = writer
-        writer.writerow([_text(row.get(name, "")) for name in self._columns])
+        writer.writerow([csv_text(row.get(name, "")) for name in self._columns])
         data = text.getvalue().encode()
         end = self._stream.seek(0, io.SEEK_END)
         try:
@@ -163,10 +164,10 @@ class ResultsWriter:
         text = getattr(self, "_xdmf_text", None)
         if self.comm.rank != 0 or text is None:
             return
-        from drape.io.checkpoint import _replace_text
+        from drape.io.atomic import replace_text
         path = self.folder / FIELDS_FILE
         try:
-            _replace_text(path, text)
+            replace_text(path, text)
         except OSError:
             with path.open("r+b") as stream:
                 stream.write(text.encode())
@@ -176,9 +177,9 @@ class ResultsWriter:
         """result.npz: nodal and point fields gathered on rank 0, sorted by coordinates."""
         data = gather_sorted(self.problem)
         if self.comm.rank == 0:     # to a temporary file, renamed: never a cut-off result
-            from drape.io.checkpoint import _replace_atomically, _savez
-            _replace_atomically(self.folder / SNAPSHOT_FILE,
-                                lambda stream: _savez(stream, dict(t=t, **data)))
+            from drape.io.atomic import replace_atomically, savez
+            replace_atomically(self.folder / SNAPSHOT_FILE,
+                               lambda stream: savez(stream, dict(t=t, **data)))
 
     def close(self) -> None:
         if self._csv is not None:
@@ -237,7 +238,8 @@ def write_table(path: Path, columns, rows: list) -> None:
                              for c in columns])
 
 
-def _text(value) -> str:
+def csv_text(value) -> str:
+    """A steps.csv cell: floats (numpy's too) to full precision (repr), the rest as str."""
     if isinstance(value, (float, np.floating)):
         return repr(float(value))
     return str(value)

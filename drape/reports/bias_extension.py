@@ -50,13 +50,15 @@ def central_shear(comm, problem, centre, radius: float) -> float:
     return total / count if count else float("nan")
 
 
-def measure(config, comm, problem, row: dict) -> dict:
-    """The report's columns of one step (added to the steps.csv row)."""
+def measure(config, comm, problem, record) -> dict:
+    """The report's columns of one step (a drape.step_record.StepRecord; added to its
+    columns, and so to steps.csv)."""
     bias, blank = config.bias_extension, config.blank
     radius = bias.centre_radius if bias.centre_radius is not None else 0.1 * blank.width
-    d = float(row[bias.displacement])
+    d = float(record.histories[bias.displacement])
+    pulled_x = record.reactions[bias.pulled][0]
     return {"displacement_mm": d, "time_s": 60.0 * abs(d) / bias.speed,
-            "force_N": float(row[f"{bias.pulled}_Fx"]) * (1.0 if bias.pulled == "right" else -1.0),
+            "force_N": float(pulled_x) * (1.0 if bias.pulled == "right" else -1.0),
             "central_shear_deg": central_shear(comm, problem,
                                                (blank.length / 2, blank.width / 2), radius),
             "kinematic_shear_deg": float(kinematic_deg(blank.length, blank.width, abs(d)))}
@@ -74,11 +76,12 @@ class BiasExtensionReport(JobPart):
     def bind(self, problem, motion) -> None:
         self.problem = problem
 
-    def measure(self, row: dict, rows: list, force) -> None:
-        row.update(measure(self.config, self.comm, self.problem, row))
+    def measure(self, record, records: list, force) -> None:
+        record.columns.update(measure(self.config, self.comm, self.problem, record))
 
-    def finish(self, folder: Path, rows: list, seconds: float) -> None:
-        write(folder, rows, self.config.title)
+    def finish(self, folder: Path, records: list, seconds: float) -> None:
+        write(folder, [{"step": r.step, "t": r.t, **r.columns} for r in records],
+              self.config.title)
 
 
 def write(folder: Path, rows: list[dict], title: str = "") -> None:

@@ -27,7 +27,8 @@ from drape.fe.job_part import JobPart
 from drape.io.writer import write_table
 
 FILE_STEM = "frame_force"
-#: the report's columns in steps.csv
+#: frame_force.csv's columns after step, t and angle_deg (the first two are the report's
+#: columns in steps.csv, tau_mean is the step loop's)
 COLUMNS = ("frame_force", "frame_force_from_tau", "tau_mean")
 
 
@@ -44,15 +45,17 @@ class FrameForceReport(JobPart):
     def bind(self, problem, motion) -> None:
         self.motion = motion
 
-    def measure(self, row: dict, rows: list, force) -> None:
-        angle = row[self.angle]
-        q = self.motion.conjugate_force(force, row["t"], self.angle)
-        row["frame_force"] = from_conjugate_force(self.side, angle, q) if row["step"] > 0 else 0.0
-        row["frame_force_from_tau"] = float(closed_form(self.side, angle, row["tau_mean"]))
+    def measure(self, record, records: list, force) -> None:
+        angle = record.histories[self.angle]
+        q = self.motion.conjugate_force(force, record.t, self.angle)
+        record.columns["frame_force"] = (from_conjugate_force(self.side, angle, q)
+                                         if record.step > 0 else 0.0)
+        record.columns["frame_force_from_tau"] = float(closed_form(self.side, angle,
+                                                                   record.tau_mean))
 
-    def finish(self, folder: Path, rows: list, seconds: float) -> None:
-        write(folder, self.side, [{"step": r["step"], "t": r["t"], "angle_deg": r[self.angle],
-                                   **{k: r[k] for k in COLUMNS}} for r in rows])
+    def finish(self, folder: Path, records: list, seconds: float) -> None:
+        write(folder, self.side, [{"step": r.step, "t": r.t, "angle_deg": r.histories[self.angle],
+                                   **r.columns, "tau_mean": r.tau_mean} for r in records])
 
 
 def corner_distance_rate(side: float, angle_deg: float) -> float:

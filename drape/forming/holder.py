@@ -1,0 +1,169 @@
+"""The blank holder of a forming job: where it pinches the blank, and how its height is set
+for a force (force control) as a press's cushion does.
+
+A membrane has no thickness, so the rigid holder pinches the flange against the die, both in
+smoothed penalty contact (:func:`drape.forming.contact.normal_pressure`); its height is set
+so that the pinched flange carries the pressure F / A (A the blank's reference area under the
+holder's flat face: :func:`holder_region` for the built-in tools, :func:`pinch_region` for
+STEP tools). A converged step whose measured holder force is off F by more than
+:data:`HOLDER_TOLERANCE` is solved again with the holder moved
+(:meth:`drape.forming.press.Forming.hold_force`, with a :class:`Bracket`), and after every
+converged step the height is corrected by the measured force (:class:`HolderControl`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from drape.errors import InputError
+from drape.forming.checks import tool_set
+from drape.forming.contact import gap_for_pressure
+
+#: fabric counted as under the holder only when it lies on the die's top face (within this, mm)
+ON_DIE_TOLERANCE = 1.0
+#: a converged step's holder force must be within this fraction of process.holder_force, else
+#: the step is solved again with the holder moved (drape.forming.press.Forming.hold_force), at
+#: most HOLDER_CORRECTIONS times: corrections between steps alone let the force drift where the
+#: fabric under the holder thickens, as in the locking stage (docs/forming.md, "Blank holder").
+#: Room for several moves: where the holder comes down from the wrinkles at its rim onto the
+#: flat flange the force bends sharply, and closing in on F inside the bracket can take more
+#: than the one or two moves most steps need
+HOLDER_TOLERANCE = 0.01
+HOLDER_CORRECTIONS = 6
+#: until the force has been seen on both sides of F, the re-solves after the first move the
+#: target by the error over the secant's slope of the measured force against the target, at
+#: least this: where the fabric pushes the holder at its rim the force answers a lift by a
+#: small fraction of it (double dome: 0.01-0.1)
+HOLDER_LEAST_SLOPE = 0.005
+#: and at most this: where the holder's rim presses the fabric drawn over the die's fillet the
+#: force grows faster than the target, and a slope bounded by 1 would make the moves overshoot
+#: by about as much as they correct, back and forth
+HOLDER_MOST_SLOPE = 10.0
+#: a converged step whose measured holder force is off process.holder_force by more than this
+#: fraction is a warning in the log (with the step and both forces) and is counted in
+#: summary.json: the log and the summary never state a force that was not applied
+HOLDER_WARNING = 0.05
+#: STEP tools: a point of the flat blank is under the holder's flat face when the holder's and
+#: the die's normals there are within 1 degree of the press axis (cos 1 deg) and the opening
+#: between the two faces is within PINCH_TOLERANCE (mm) of the smallest (:func:`pinch_region`)
+FLAT_COSINE = math.cos(math.radians(1.0))
+PINCH_TOLERANCE = 0.05
+
+
+def pinch_region(holder, die, points, comm, reach: float = ON_DIE_TOLERANCE):
+    """STEP tools, whatever their shape: the points (P, 3) of the flat blank that lie between a
+    flat face of the holder and one of the die (both normals within 1 degree of the press axis,
+    both faces within ``reach`` of the point), where the opening between the faces (the sum of
+    the two gaps) is within PINCH_TOLERANCE of its smallest value; and that smallest opening
+    (mm), which the holder closes before it pinches (collective). On the built-in hemisphere's
+    tools this is the ring r >= holder_inner_radius + holder_fillet_radius of holder_region."""
+    from mpi4py import MPI
+    above, below = holder.query(points, cutoff=reach), die.query(points, cutoff=reach)
+    facing = ((above.normal[:, 2] <= -FLAT_COSINE) & (below.normal[:, 2] >= FLAT_COSINE)
+              & (np.abs(above.gap) <= reach) & (np.abs(below.gap) <= reach))
+    opening = above.gap + below.gap
+    least = comm.allreduce(float(opening[facing].min()) if facing.any() else math.inf,
+                           op=MPI.MIN)
+    # no flat pinch anywhere: an empty region (HolderControl says so), opening 0
+    return facing & (opening <= least + PINCH_TOLERANCE), least if math.isfinite(least) else 0.0
+
+
+def holder_region(config):
+    """A function (P, 3) positions -> mask of the points under the holder's flat face, or None
+    (STEP tools: :func:`pinch_region` finds it on the tools)."""
+    tools, dims = tool_set(config)
+    if tools.kind == "hemisphere":
+        inner = dims.holder_inner_radius + dims.holder_fillet_radius
+        outer = dims.holder_outer_radius
+
+        def region(x):
+            r = np.hypot(x[:, 0], x[:, 1])
+            return (r >= inner) & (r <= outer) & (x[:, 2] > -dims.gap - ON_DIE_TOLERANCE)
+        return region
+    if tools.kind == "double_dome":
+        a = dims.dome_offset
+        opening = dims.holder_opening_radius + dims.holder_edge_radius
+
+        def region(x):
+            d = np.hypot(x[:, 0] - np.clip(x[:, 0], -a, a), x[:, 1])
+            return ((d >= opening) & (np.abs(x[:, 0]) <= dims.die_length / 2)
+                    & (np.abs(x[:, 1]) <= dims.die_width / 2)
+                    & (x[:, 2] > -dims.gap - ON_DIE_TOLERANCE))
+        return region
+    return None
+
+
+class HolderControl:
+    """Force control of the rigid holder: its height for a total force F (N).
+
+    The flange of reference area A (under the holder's flat face) pinched between the die
+    (top at z = 0) and the holder (bottom at z = -d) settles midway, at a gap -d/2 from each,
+    where both push with the pressure p(-d/2) of the smoothed penalty; so d = -2 g(F' / A) with
+    g the inverse of the penalty law (:func:`drape.forming.contact.gap_for_pressure`). F' starts at
+    F
+    and after every converged step moves by half the difference between F and the measured
+    holder force (fabric thicker than flat where it wrinkles or bunches, the flange leaving the
+    flat face), which brings the measured force to F within a few steps. Where the fabric
+    pushes the holder elsewhere too (at its rim, or wrinkles rising under it), F' goes below
+    F, and below F_min = 1e-3 F the holder keeps lifting, by 2 (F_min - F') / (eps_N A), the
+    slope of the plain penalty's branch: a press's cushion lifts as far as the force needs.
+    Without the lift the holder would stop 2 g0 above the die, where the smoothed penalty's
+    pressure falls to zero, and could not rise far enough to bring the force down to F."""
+
+    GAIN = 0.5
+
+    def __init__(self, force: float, area: float, penalty: float, smoothing: float,
+                 opening: float = 0.0):
+        if area <= 0.0:
+            raise InputError("no blank under the blank holder", key="process.holder_force",
+                             value=force, expected="a blank reaching under the holder's flat "
+                             "face (STEP tools: a flat face of the holder facing one of the "
+                             "die, within 1 mm of the blank's plane z = 0), or holder_force = 0")
+        self.force, self.area, self.penalty, self.smoothing = force, area, penalty, smoothing
+        #: how far the holder travels before its face reaches the die's (STEP tools: the
+        #: opening between them where the blank lies in it, :func:`pinch_region`; 0 built-in)
+        self.opening = float(opening)
+        self.target = force
+
+    def lowering(self) -> float:
+        """d (mm): how far below the die's top face the holder's face is (negative: above);
+        continuous and increasing in the target force F'."""
+        least = 1e-3 * self.force
+        d = -2.0 * gap_for_pressure(max(self.target, least) / self.area, self.penalty,
+                                    self.smoothing)
+        return self.opening + d - 2.0 * max(least - self.target, 0.0) / (self.penalty * self.area)
+
+    def update(self, measured: float) -> None:
+        self.target += self.GAIN * (self.force - measured)
+
+
+class Bracket:
+    """The holder targets F' whose measured force came closest to F from below (error F -
+    measured > 0) and from above (< 0), for the regula falsi of
+    :meth:`drape.forming.press.Forming.hold_force`."""
+
+    def __init__(self):
+        self.below = self.above = None      # [target, error]
+        self.kept = None                    # which end the last new point did not replace
+
+    def add(self, target: float, error: float) -> None:
+        side = "below" if error > 0.0 else "above"
+        end = getattr(self, side)
+        if end is None or abs(error) < abs(end[1]) or self.closed:
+            setattr(self, side, [target, error])
+        other = "above" if side == "below" else "below"
+        if self.closed:
+            if self.kept == other:          # the other end kept twice running: halve its error
+                getattr(self, other)[1] *= 0.5
+            self.kept = other
+
+    @property
+    def closed(self) -> bool:
+        return self.below is not None and self.above is not None
+
+    def inside(self) -> float:
+        """The target where the line through the two ends meets F."""
+        (t0, e0), (t1, e1) = self.below, self.above
+        return t0 + e0 * (t1 - t0) / (e0 - e1)

@@ -1,0 +1,130 @@
+"""The rigid tools of a forming job as a point contribution to the membrane problem: their
+surfaces built from the config (:func:`tool_surfaces`), and :class:`ToolContact`, the penalty
+contact with regularised Coulomb friction (with memory) at the membrane's quadrature points.
+
+The punch and the die are rigid surfaces (exact for the hemisphere's surfaces of revolution,
+:mod:`drape.forming.surfaces`, and for the double dome's rolling-ball constructions,
+:mod:`drape.forming.double_dome`; an exact closest point on the gmsh triangulation of STEP
+tools) queried at the quadrature points from their current positions;
+:func:`drape.forming.contact.traction` gives traction and tangent. The punch moves by
+(0, 0, -stroke * t); the holder by what its :class:`drape.forming.holder.HolderControl` says.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from drape.fe.membrane import PointContribution
+from drape.forming.contact import elastic_slip, traction
+
+#: meshed (STEP) tools: the candidate lists' margin (mm, drape.forming.surfaces.MeshedSurface): a
+#: point is
+#: searched again once it has moved this far (in the tool's frame) since its last search
+TOOL_LIST_MARGIN = 0.5
+
+
+def tool_surfaces(tools, dims, comm) -> tuple[dict, str]:
+    """The tools' surfaces {name: surface with ``query``} of the config's ``[tools]`` (``tools``
+    and its dimensions ``dims``: drape.forming.checks.tool_set), and a line describing them."""
+    from drape.forming.surfaces import MeshedSurface
+    from drape.geometry.tools import analytic_double_dome_tools, analytic_tools, build_tools
+    if tools.kind == "hemisphere":
+        return analytic_tools(dims), "hemisphere tools (exact surfaces of revolution)"
+    if tools.kind == "double_dome":
+        return (analytic_double_dome_tools(dims),
+                "double-dome tools (exact rolling-ball constructions)")
+    started = time.perf_counter()
+    meshed = build_tools(tools, comm=comm)
+    surfaces = {name: MeshedSurface(surface, margin=TOOL_LIST_MARGIN)
+                for name, surface in meshed.items()}
+    return surfaces, (f"{tools.kind} tools meshed by gmsh (" + ", ".join(
+        f"{name} {s.n_triangles} triangles" for name, s in surfaces.items())
+        + f", {time.perf_counter() - started:.1f} s)")
+
+
+class ToolContact(PointContribution):
+    """Rigid tools in (smoothed) penalty contact with friction; the tools named in ``moving``
+    translate by (0, 0, -stroke(t)); the holder, when ``holder_control`` (a
+    :class:`~drape.forming.holder.HolderControl`) is set, is lowered by what it says (read by
+    :meth:`set_load`)."""
+
+    name = "tools"
+
+    def __init__(self, surfaces: dict, moving: set, stroke: float, penalty: float,
+                 friction: float, regularisation: float, cutoff: float, smoothing: float = 0.0):
+        self.surfaces = surfaces
+        self.moving = set(moving)
+        self.stroke = float(stroke)
+        self.penalty, self.friction, self.regularisation = penalty, friction, regularisation
+        self.cutoff, self.smoothing = cutoff, float(smoothing)
+        self.holder_control = None
+        self.offsets = {name: np.zeros(3) for name in surfaces}
+        self.committed_offsets = dict(self.offsets)
+        self.last = {}
+
+    def setup(self, reference_points):
+        super().setup(reference_points)
+        self.committed_u = np.zeros((len(reference_points), 3))
+        self._u = self.committed_u
+        #: per tool, the tangential slip (mm) still held elastically in the stick zone at the
+        #: last converged step: friction's memory (:meth:`commit`)
+        self.elastic_slip = {name: np.zeros((len(reference_points), 3)) for name in self.surfaces}
+        self._trial_slip = {}
+
+    def set_load(self, t: float) -> None:
+        for name in self.surfaces:
+            down = self.stroke * t if name in self.moving else 0.0
+            if name == "holder" and self.holder_control is not None:
+                down += self.holder_control.lowering()
+            self.offsets[name] = np.array([0.0, 0.0, -down])
+
+    def evaluate(self, positions, displacements):
+        f = np.zeros_like(positions)
+        K = np.zeros(positions.shape + (3,))
+        self.last = {}
+        for name, surface in self.surfaces.items():
+            offset = self.offsets[name]
+            query = surface.query(positions, offset, cutoff=self.cutoff)
+            # the slip since the last converged step plus the elastic slip held then: friction
+            # with memory, so that a point drawn slowly over a tool reaches mu p whatever the
+            # step size (without it a point drawn by less than the slip regularisation per step
+            # never reaches mu p, and the forces depend on the steps; docs/forming-checks.md)
+            slip = (displacements - self.committed_u - (offset - self.committed_offsets[name])
+                    + self.elastic_slip[name])
+            response = traction(query.gap, query.normal, slip, self.penalty, self.friction,
+                                self.regularisation, touching_is_active=True,
+                                smoothing=self.smoothing)
+            f += response.traction
+            K -= response.tangent
+            self.last[name] = (query.gap, response)
+            self._trial_slip[name] = (slip, query.normal)
+        self._u = displacements
+        return f, K
+
+    def commit(self) -> None:
+        """The converged step becomes the reference of the next; each point keeps the part of
+        its tangential slip within the stick zone (:func:`drape.forming.contact.elastic_slip`)."""
+        self.committed_u = np.array(self._u, copy=True)
+        self.committed_offsets = {k: v.copy() for k, v in self.offsets.items()}
+        for name, (slip, n) in self._trial_slip.items():
+            self.elastic_slip[name] = elastic_slip(slip, n, self.last[name][1].pressure,
+                                                   self.regularisation)
+
+    def state(self) -> dict:
+        state = {"committed_u": self.committed_u,
+                 **{f"offset_{k}": v for k, v in self.committed_offsets.items()},
+                 **{f"elastic_slip_{k}": v for k, v in self.elastic_slip.items()}}
+        if self.holder_control is not None:
+            state["holder_target"] = np.array(self.holder_control.target)
+        return state
+
+    def load_state(self, state: dict) -> None:
+        self.committed_u = np.array(state["committed_u"], copy=True)
+        self._u = self.committed_u
+        for k in self.committed_offsets:
+            self.committed_offsets[k] = np.array(state[f"offset_{k}"], copy=True)
+            self.elastic_slip[k] = np.array(state[f"elastic_slip_{k}"], copy=True)
+        if self.holder_control is not None:
+            self.holder_control.target = float(state["holder_target"])
