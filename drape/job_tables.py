@@ -107,11 +107,6 @@ class BendingConfig:
         f"flat job, {DEFAULT_FORMING_BENDING:g} for a forming job (a membrane without bending "
         "has no stiffness against wrinkling: docs/forming.md)", non_negative, "N mm")
 
-    def value(self, forming: bool) -> float:
-        if self.rigidity is not None:
-            return self.rigidity
-        return DEFAULT_FORMING_BENDING if forming else 0.0
-
 
 @dataclasses.dataclass(frozen=True)
 class HistoryConfig:

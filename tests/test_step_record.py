@@ -110,14 +110,14 @@ def test_the_step_loop_knows_no_forming():
 
 
 def test_the_bending_rigidity_is_the_configs_else_a_parts_default():
-    """A forming job's unset bending rigidity is its part's default (10 N mm, drape.job's
+    """A forming job's unset bending rigidity is its part's default (10 N mm, drape.job_tables's
     DEFAULT_FORMING_BENDING, as before the loop stopped asking the config whether the job
     forms); a flat job's is 0; a set one is the config's."""
     from types import SimpleNamespace
 
     from drape.fe.job_part import JobPart
     from drape.forming.press import Forming
-    from drape.job import DEFAULT_FORMING_BENDING, BendingConfig
+    from drape.job_tables import DEFAULT_FORMING_BENDING, BendingConfig
     from drape.step_loop import bending_rigidity
     assert Forming.default_bending_rigidity == DEFAULT_FORMING_BENDING == 10.0
     forming = SimpleNamespace(default_bending_rigidity=Forming.default_bending_rigidity)

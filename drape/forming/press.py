@@ -35,7 +35,8 @@ from drape.forming.holder import (HOLDER_CORRECTIONS, HOLDER_LEAST_SLOPE, HOLDER
                                   HOLDER_TOLERANCE, HOLDER_WARNING, Bracket, HolderControl,
                                   holder_region, pinch_region)
 from drape.forming.tool_contact import ToolContact, tool_surfaces
-from drape.job import DEFAULT_FORMING_BENDING, compose_title, describe_blank
+from drape.job import compose_title, describe_blank
+from drape.job_tables import DEFAULT_FORMING_BENDING
 from drape.reports.oscillation import OSCILLATION_WARNING
 
 # added to a quasi-static forming run's failure: where the steps shrink as the blank wrinkles
