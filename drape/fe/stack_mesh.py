@@ -73,14 +73,37 @@ def create_stack_mesh(comm, ply_blanks, heights, thicknesses, mesh_config,
     """Mesh the plies (BlankConfig each: :meth:`drape.forming.plies.PlyConfig.blank`) into one
     distributed mesh; ``centred`` moves each rectangle to be centred on the origin (forming).
     An error while meshing on rank 0 is raised on every rank (as create_blank_mesh does)."""
-    import gmsh
+    payload = _meshed_on_root(comm, ply_blanks, mesh_config, centred)
+    msh, cell_tags, facet_tags, names = _distributed(comm, payload)
+    tdim = 2
+    # cell values: PLY_TAG_STRIDE * ply + the blank's own tag (blank or blank_strip)
     from dolfinx import cpp as _cpp
-    from dolfinx.io.gmshio import cell_perm_array, ufl_mesh
-    from dolfinx.mesh import create_mesh, meshtags_from_entities
+
+    from drape.geometry.blank import BLANK, BLANK_STRIP
+    ply_of_cell = (cell_tags.values // PLY_TAG_STRIDE).astype(np.int32)
+    ply_tags = _cpp.mesh.MeshTags_int32(msh._mesh, tdim, cell_tags.indices, ply_of_cell)
+    ply_tags.name = "ply"
+    strip_values = [k * PLY_TAG_STRIDE + ply_names[BLANK_STRIP]
+                    for k, ply_names in enumerate(names) if BLANK_STRIP in ply_names]
+    strip = np.sort(cell_tags.indices[np.isin(cell_tags.values, strip_values)]).astype(np.int32)
+    boundaries = {f"ply{k}.{name}": tag + k * PLY_TAG_STRIDE
+                  for k, ply_names in enumerate(names)
+                  for name, tag in ply_names.items() if name not in (BLANK, BLANK_STRIP)}
+    if len(ply_blanks) == 1:
+        boundaries.update({name: tag for name, tag in names[0].items()
+                           if name not in (BLANK, BLANK_STRIP)})
+    description = _description(comm, msh, strip, mesh_config, len(ply_blanks))
+    return StackMesh(msh, facet_tags, boundaries, description, strip, ply_tags=ply_tags,
+                     heights=tuple(float(h) for h in heights),
+                     thicknesses=tuple(float(t) for t in thicknesses))
+
+
+def _meshed_on_root(comm, ply_blanks, mesh_config, centred):
+    """gmsh meshes every ply on rank 0 (:func:`_stack_arrays`); its arrays there, None on the
+    other ranks. A failure is raised on every rank as an InputError."""
+    import gmsh
 
     from drape.errors import InputError
-    from drape.geometry.blank import BLANK, BLANK_STRIP
-
     error, payload = None, None
     if comm.rank == 0:
         gmsh.initialize(readConfigFiles=False)
@@ -97,6 +120,15 @@ def create_stack_mesh(comm, ply_blanks, heights, thicknesses, mesh_config,
     error = comm.bcast(error, root=0)
     if error is not None:
         raise error
+    return payload
+
+
+def _distributed(comm, payload):
+    """The DOLFINx mesh of rank 0's arrays, distributed, with its cell and facet tags; returns
+    (mesh, cell tags, facet tags, each ply's physical names)."""
+    from dolfinx import cpp as _cpp
+    from dolfinx.io.gmshio import cell_perm_array, ufl_mesh
+    from dolfinx.mesh import create_mesh, meshtags_from_entities
     header = comm.bcast(None if payload is None else payload["header"], root=0)
     cell_id, num_nodes, facet_nodes, facet_id, names = header
     if comm.rank == 0:
@@ -127,20 +159,11 @@ def create_stack_mesh(comm, ply_blanks, heights, thicknesses, mesh_config,
     msh.topology.create_connectivity(tdim - 1, tdim)
     facet_tags = tags(tdim - 1, facets, facet_values)
     facet_tags.name = "Facet tags"
+    return msh, cell_tags, facet_tags, names
 
-    # cell values: PLY_TAG_STRIDE * ply + the blank's own tag (blank or blank_strip)
-    ply_of_cell = (cell_tags.values // PLY_TAG_STRIDE).astype(np.int32)
-    ply_tags = _cpp.mesh.MeshTags_int32(msh._mesh, tdim, cell_tags.indices, ply_of_cell)
-    ply_tags.name = "ply"
-    strip_values = [k * PLY_TAG_STRIDE + ply_names[BLANK_STRIP]
-                    for k, ply_names in enumerate(names) if BLANK_STRIP in ply_names]
-    strip = np.sort(cell_tags.indices[np.isin(cell_tags.values, strip_values)]).astype(np.int32)
-    boundaries = {f"ply{k}.{name}": tag + k * PLY_TAG_STRIDE
-                  for k, ply_names in enumerate(names)
-                  for name, tag in ply_names.items() if name not in (BLANK, BLANK_STRIP)}
-    if len(ply_blanks) == 1:
-        boundaries.update({name: tag for name, tag in names[0].items()
-                           if name not in (BLANK, BLANK_STRIP)})
+
+def _description(comm, msh, strip, mesh_config, n_plies) -> str:
+    """The stack's mesh in a few words, for the log."""
     n_local = msh.topology.index_map(2).size_local
     n_strip = comm.allreduce(int(np.sum(strip < n_local)))
     description = (f"{msh.topology.index_map(2).size_global} {msh.topology.cell_type.name} "
@@ -148,11 +171,7 @@ def create_stack_mesh(comm, ply_blanks, heights, thicknesses, mesh_config,
                    f"{mesh_config.pattern} pattern"
                    + (f" ({n_strip} of them in the strip between the yarn lattice and the "
                       f"outline)" if n_strip else ""))
-    if len(ply_blanks) > 1:
-        description = f"{len(ply_blanks)} plies, {description}"
-    return StackMesh(msh, facet_tags, boundaries, description, strip, ply_tags=ply_tags,
-                     heights=tuple(float(h) for h in heights),
-                     thicknesses=tuple(float(t) for t in thicknesses))
+    return f"{n_plies} plies, {description}" if n_plies > 1 else description
 
 
 def _stack_arrays(gmsh, ply_blanks, mesh_config, centred):
