@@ -24,17 +24,25 @@ ENV LANG=C.UTF-8 \
 COPY scripts/install.sh /opt/drape/src/scripts/install.sh
 RUN DRAPE_APT_ONLY=1 /opt/drape/src/scripts/install.sh && rm -rf /var/lib/apt/lists/*
 
-# The source stays in the image (configs/, docs/); drape is installed into its own venv, not
-# editable, so that the image does not depend on the source tree's state. install.sh finds the
-# packages installed and goes on to the venv.
-COPY . /opt/drape/src
-RUN DRAPE_VENV=/opt/drape/venv DRAPE_EDITABLE=0 DRAPE_LINT=0 /opt/drape/src/scripts/install.sh \
-    && rm -rf /var/lib/apt/lists/* /root/.cache/pip
+# drape is installed into its own venv, not editable, so that the image does not depend on the
+# source tree's state; install.sh finds the packages installed and goes on to the venv. Only what
+# the install reads is copied for it (the package's sources, pyproject.toml and the README it
+# names, scripts/): a change of tests/, docs/ or configs/ rebuilds only the last COPY's layer.
+COPY pyproject.toml README.md /opt/drape/src/
+COPY scripts /opt/drape/src/scripts
+COPY geometry /opt/drape/src/geometry
+COPY drape /opt/drape/src/drape
+RUN DRAPE_VENV=/opt/drape/venv DRAPE_EDITABLE=0 DRAPE_LINT=0 DRAPE_WARM_UP=0 \
+    /opt/drape/src/scripts/install.sh && rm -rf /var/lib/apt/lists/* /root/.cache/pip
 
 # numba's cache of the law's kernel is keyed by its source files' mtimes, which an image layer
-# rounds to the second: compile it again on top of the installed layer, or every container
-# compiles it at its first job (about 25 s).
+# rounds to the second: a cache written in the install layer would be stale in the image (every
+# container would compile the kernel at its first job, about 25 s), so it is compiled here, on
+# top of the installed layer, and only here.
 RUN cd / && python -c "import drape.law.kernel as k; k.warm_up()"
+
+# The whole source stays in the image (configs/, docs/, tests/).
+COPY . /opt/drape/src
 
 VOLUME /results
 WORKDIR /results

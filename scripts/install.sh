@@ -13,6 +13,8 @@
 # Environment: DRAPE_VENV (default: <repo>/.venv), DRAPE_EDITABLE=0 for a plain install,
 # DRAPE_LINT=0 to leave the linter out (an image that only runs jobs),
 # DRAPE_APT_ONLY=1 to stop after the Debian packages (the Dockerfile's first, cached layer),
+# DRAPE_WARM_UP=0 to leave the law's kernel uncompiled (the Dockerfile compiles it in a later
+# layer, where numba's cache stays valid),
 # DRAPE_PARAVIEW=1 to add Debian's ParaView 5.11 and Xvfb for `drape view` (138 packages, about 800 MB
 # more, so not by default; tests/test_paraview.py installs them itself when missing).
 set -euo pipefail
@@ -25,6 +27,7 @@ apt_packages=(
   python3-numpy python3-scipy python3-matplotlib python3-h5py
   python3-numba   # the law's compiled kernel (drape/law/kernel.py)
   python3-pytest python3-pytest-timeout python3-hypothesis
+  python3-pytest-xdist   # the serial pass of scripts/run-tests.sh on both cores (-n 2)
   python3-venv python3-pip python3-setuptools python3-wheel
   openmpi-bin
   # an optimised BLAS/LAPACK for MUMPS's dense fronts (Debian's alternatives switch libblas.so.3
@@ -81,5 +84,7 @@ fi
 
 # Compile the law's kernel now (numba caches it beside the installed module: about 20 s once),
 # so that the first job does not pay for it.
-(cd / && "$venv/bin/python" -c "import drape.law.kernel as k; k.warm_up()")
+if [ "${DRAPE_WARM_UP:-1}" = 1 ]; then
+  (cd / && "$venv/bin/python" -c "import drape.law.kernel as k; k.warm_up()")
+fi
 (cd / && "$venv/bin/python" -c "import dolfinx, drape; print('drape install: ok, dolfinx', dolfinx.__version__, 'in', '$venv')")

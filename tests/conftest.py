@@ -7,6 +7,14 @@ seconds or minutes whose checks do not depend on the number of ranks; that 1 ran
 2 give is tests/test_fe_cli.py's) run in the 2-rank pass, where they use both cores, and are
 skipped in the serial pass when DRAPE_TWO_RANK_PASS=1 says that a 2-rank pass follows (as
 scripts/run-tests.sh does); run alone, e.g. `pytest tests/test_forming.py`, they run serially.
+Tests marked ``full_stroke`` (the shipped double domes pressed to their full 58 mm, minutes each
+on 2 ranks) are part of the suite; DRAPE_FULL_STROKE=0 leaves them out, for a quicker loop while
+working (the short double domes' symmetry, contact and holder checks still run).
+
+The serial pass runs on two pytest-xdist workers (``-n 2 --dist loadgroup``,
+scripts/run-tests.sh). A module- or session-scoped fixture is made once per worker that uses it,
+so the tests that share one are kept on one worker (an ``xdist_group``); the others are dealt out
+one by one.
 """
 
 import os
@@ -29,9 +37,52 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "serial: run only in the serial pass (not under mpirun)")
     config.addinivalue_line("markers", "two_ranks: run in the 2-rank pass only, when the suite "
                             "has one (DRAPE_TWO_RANK_PASS=1 in the serial pass)")
+    config.addinivalue_line("markers", "full_stroke: a shipped forming job to its full stroke, "
+                            "left out when DRAPE_FULL_STROKE=0")
 
 
+def shared_fixtures(item) -> list[str]:
+    """The suite's own module- and session-scoped fixtures that a test uses (directly or through
+    other fixtures), as keys: a module fixture by module and name, a session one by name."""
+    keys = []
+    for name, definitions in item._fixtureinfo.name2fixturedefs.items():
+        fixture = definitions[-1]
+        module = getattr(fixture.func, "__module__", "")
+        if fixture.scope in ("module", "session") and (
+                module == "conftest" or module.startswith("test_")):
+            keys.append(f"{module}::{name}" if fixture.scope == "module" else name)
+    return sorted(keys)
+
+
+def group_shared_fixtures(items) -> None:
+    """One ``xdist_group`` for the tests that share a module or session fixture, directly or
+    through a chain of tests each sharing one with the next: each is made once, on one worker."""
+    parent = {}
+
+    def root(key):
+        while parent.setdefault(key, key) != key:
+            key = parent[key]
+        return key
+
+    keys = {item: shared_fixtures(item) for item in items}
+    for found in keys.values():
+        for key in found[1:]:
+            parent[root(key)] = root(found[0])
+    for item, found in keys.items():
+        if found:
+            item.add_marker(pytest.mark.xdist_group(root(found[0])))
+
+
+@pytest.hookimpl(tryfirst=True)   # before pytest-xdist reads the groups
 def pytest_collection_modifyitems(config, items):
+    if os.environ.get("DRAPE_FULL_STROKE") == "0":
+        skip = pytest.mark.skip(reason="a shipped job to full stroke, left out by "
+                                "DRAPE_FULL_STROKE=0")
+        for item in items:
+            if "full_stroke" in item.keywords:
+                item.add_marker(skip)
+    if config.pluginmanager.hasplugin("xdist"):
+        group_shared_fixtures(items)
     if comm_size() > 1:
         skip = pytest.mark.skip(reason="serial-only test, skipped under mpirun")
         for item in items:
@@ -110,3 +161,35 @@ def hemisphere_5mm(tmp_path_factory):
     summary = run_job(job, comm, output=str(folder), log=said.append)
     comm.barrier()
     return job, summary, folder, said
+
+
+#: the shipped double-dome jobs made short: the punch 3 mm down in 0.3-0.6 mm steps (a first
+#: step lifting the blank off the die, then the blank's inertia from rest), no fields written
+DOUBLE_DOME_SHORT = ["process.stroke=3", "steps.initial=0.1", "steps.maximum=0.2",
+                     "output.xdmf=false"]
+
+
+@pytest.fixture(scope="session")
+def double_dome_short(tmp_path_factory):
+    """Runs of configs/double_dome.toml and double_dome_45.toml with DOUBLE_DOME_SHORT, each made
+    once for the session: the 0/90 one is both the built-in tools' side of the STEP tools'
+    comparison (tests/test_step_tools.py) and, with the +-45 one, the run whose symmetries and
+    contact tests/test_forming.py checks. get(config) -> (job, RunSummary, folder); every rank
+    sees rank 0's folder."""
+    from mpi4py import MPI
+
+    from drape.job import load_job
+    from drape.run import run_job
+    comm = MPI.COMM_WORLD
+    made = {}
+
+    def get(config):
+        if config not in made:
+            folder = tmp_path_factory.mktemp(config.split(".")[0]) if comm.rank == 0 else None
+            folder = comm.bcast(folder, root=0)
+            job = load_job(CONFIGS / config, overrides=list(DOUBLE_DOME_SHORT))
+            summary = run_job(job, comm, output=str(folder))
+            comm.barrier()
+            made[config] = job, summary, folder
+        return made[config]
+    return get

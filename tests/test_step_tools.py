@@ -7,7 +7,8 @@ The forming comparisons are slow: the hemisphere (the punch 5 mm down on the coa
 its die fillet allows) about a minute per run on one rank of the project's machine, the
 double dome (3 mm, its shipped 7.5 mm mesh) about 45 s built-in and 90 s with STEP tools.
 They are marked ``two_ranks`` (tests/conftest.py): the suite runs them once, under
-`mpirun -n 2`; the built-in hemisphere run is tests/test_forming.py's (tests/conftest.py).
+`mpirun -n 2`; the built-in runs are the session's (tests/conftest.py), which
+tests/test_forming.py checks too.
 """
 
 import json
@@ -17,7 +18,7 @@ import numpy as np
 import pytest
 
 from cad_helpers import step_job, write_hemisphere_step
-from conftest import CONFIGS, HEMISPHERE_SHORT
+from conftest import CONFIGS, DOUBLE_DOME_SHORT, HEMISPHERE_SHORT
 from tool_helpers import brute_force, wavy_sheet
 
 SHORT = HEMISPHERE_SHORT
@@ -227,20 +228,22 @@ def test_a_position_controlled_step_holder_reports_the_force_it_measured(cad, sh
 
 
 @pytest.mark.two_ranks
-def test_step_tools_give_the_built_in_double_domes_answer(shared_tmp, comm):
+def test_step_tools_give_the_built_in_double_domes_answer(shared_tmp, comm, double_dome_short):
     """The shipped 0/90 double-dome job (h = 7.5 mm, with the blank's inertia), 3 mm in steps
-    of 0.3-0.6 mm, with its exact tools and with the same tools written as STEP by gmsh (die
-    and holder plates 50 mm wider all round: the exact ones are unbounded outward): peak shear,
-    the mid-side draw-ins and the punch force within 2 %, the holder within 1 % of its 500 N
-    at every converged step (measured 2026-12-05: +1.0 %, -0.9 %, -0.3 %; 498.0-501.8 N)."""
+    of 0.3-0.6 mm, with its exact tools (the session's run, tests/conftest.py) and with the same
+    tools written as STEP by gmsh (die and holder plates 50 mm wider all round: the exact ones
+    are unbounded outward): peak shear, the mid-side draw-ins and the punch force within 2 %,
+    the holder within 1 % of its 500 N at every converged step (measured 2026-12-05: +1.0 %,
+    -0.9 %, -0.3 %; 498.0-501.8 N)."""
     from cad_helpers import write_double_dome_step
     folder = shared_tmp / "double_dome"
     if comm.rank == 0:
         step_job(CONFIGS / "double_dome.toml", folder, write_double_dome_step(folder / "cad"))
     comm.barrier()
-    short = ["process.stroke=3", "steps.initial=0.1", "steps.maximum=0.2"]
-    _, builtin, _ = run(CONFIGS / "double_dome.toml", folder / "builtin", short=short)
-    step_summary, step, _ = run(folder / "double_dome_step.toml", folder / "step", short=short)
+    _, _, builtin_folder = double_dome_short("double_dome.toml")
+    builtin = json.loads((builtin_folder / "summary.json").read_text())
+    step_summary, step, _ = run(folder / "double_dome_step.toml", folder / "step",
+                                short=DOUBLE_DOME_SHORT)
     assert step["max_shear_angle_deg"] == pytest.approx(builtin["max_shear_angle_deg"], rel=0.02)
     for side in ("mid_right", "mid_left"):
         assert builtin["draw_in_mm"][side] > 0.3
