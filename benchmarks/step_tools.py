@@ -45,28 +45,26 @@ def timed_queries(forming, clock):
 def run(config, folder, overrides, margin):
     from mpi4py import MPI
 
-    import drape.forming.press as forming_module
+    from drape.forming.press import Forming
     from drape.job import load_job
     from drape.run import run_job
 
     clock = {"query": 0.0}
-    plain_init = forming_module.Forming.__init__
 
-    def init(self, *args, **kwargs):
-        plain_init(self, *args, **kwargs)
-        for surface in self.tool_contact.surfaces.values():
+    def on_start(parts):
+        """The run's forming part: its meshed tools' margin set, their queries timed."""
+        forming = parts.part(Forming)
+        for surface in forming.tool_contact.surfaces.values():
             if hasattr(surface, "margin"):
                 surface.margin = margin
-        timed_queries(self, clock)
-        clock["forming"] = self
-    forming_module.Forming.__init__ = init
-    try:
-        job = load_job(config, overrides=overrides)
-        started = time.perf_counter()
-        summary = run_job(job, MPI.COMM_WORLD, output=str(folder), overwrite=True)
-        seconds = time.perf_counter() - started
-    finally:
-        forming_module.Forming.__init__ = plain_init
+        timed_queries(forming, clock)
+        clock["forming"] = forming
+
+    job = load_job(config, overrides=overrides)
+    started = time.perf_counter()
+    summary = run_job(job, MPI.COMM_WORLD, output=str(folder), overwrite=True,
+                      on_start=on_start)
+    seconds = time.perf_counter() - started
     rows = summary.rows
     import json
     report = json.loads((Path(folder) / "summary.json").read_text())
