@@ -179,44 +179,11 @@ class StackProblem(MembraneProblem):
         """The form's sparsity pattern enlarged by the candidate pairs' blocks (module
         docstring); pairs a later search finds outside it are still accepted (PETSc allocates
         them), so a pattern made at the first step stays valid."""
-        from dolfinx import cpp, fem
+        from dolfinx import cpp
         from petsc4py import PETSc
 
-        form_pattern = fem.create_sparsity_pattern(self.jacobian_form)
-        form_pattern.assemble()
-        graph = form_pattern.graph
-        # the owned rows (the graph may list the ghost rows after them, empty)
-        offsets = np.asarray(graph.offsets)[: self.n_owned + 1]
-        rows = np.repeat(np.arange(self.n_owned, dtype=np.int64), np.diff(offsets))
-        columns = np.asarray(form_pattern.column_index_map().local_to_global(
-            np.asarray(graph.array[: offsets[-1]], dtype=np.int32)), dtype=np.int64)
-        rows = self.first + rows
-        pairs = [p for p in self.ply_contact.coupled_nodes() if len(p)]
-        if pairs:
-            pairs = np.vstack(pairs)
-            pair_rows = np.repeat(pairs, 4, axis=1).ravel()
-            pair_columns = np.tile(pairs, (1, 4)).ravel()
-            rows = np.concatenate([rows, pair_rows])
-            columns = np.concatenate([columns, pair_columns])
-        index_map = self.V.dofmap.index_map
-        ghosts = np.asarray(index_map.ghosts, dtype=np.int64)
-        last = self.first + self.n_owned
-        outside = np.unique(np.concatenate([rows, columns]))
-        outside = outside[((outside < self.first) | (outside >= last))
-                          & ~np.isin(outside, ghosts)]
-        all_ghosts = np.concatenate([ghosts, outside])
-        owners = np.searchsorted(self._range_starts, all_ghosts, side="right") - 1
-        extended = cpp.common.IndexMap(self.comm, self.n_owned, all_ghosts,
-                                       owners.astype(np.int32))
-        local = {int(g): self.n_owned + i for i, g in enumerate(all_ghosts)}
-
-        def to_local(indices):
-            owned = (indices >= self.first) & (indices < last)
-            out = np.empty(len(indices), dtype=np.int32)
-            out[owned] = indices[owned] - self.first
-            out[~owned] = [local[int(g)] for g in indices[~owned]]
-            return out
-
+        rows, columns = self._coupled_entries()
+        extended, to_local = self._extended_index_map(rows, columns)
         pattern = cpp.la.SparsityPattern(self.comm, [extended, extended], [3, 3])
         local_rows, local_columns = to_local(rows), to_local(columns)
         order = np.argsort(local_rows, kind="stable")
@@ -240,6 +207,52 @@ class StackProblem(MembraneProblem):
         A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
         return A
 
+    def _coupled_entries(self):
+        """The global (block) rows and columns of the Jacobian's entries on this rank: the
+        form's owned rows, then every candidate pair's 4 x 4 node blocks."""
+        from dolfinx import fem
+        form_pattern = fem.create_sparsity_pattern(self.jacobian_form)
+        form_pattern.assemble()
+        graph = form_pattern.graph
+        # the owned rows (the graph may list the ghost rows after them, empty)
+        offsets = np.asarray(graph.offsets)[: self.n_owned + 1]
+        rows = np.repeat(np.arange(self.n_owned, dtype=np.int64), np.diff(offsets))
+        columns = np.asarray(form_pattern.column_index_map().local_to_global(
+            np.asarray(graph.array[: offsets[-1]], dtype=np.int32)), dtype=np.int64)
+        rows = self.first + rows
+        pairs = [p for p in self.ply_contact.coupled_nodes() if len(p)]
+        if pairs:
+            pairs = np.vstack(pairs)
+            pair_rows = np.repeat(pairs, 4, axis=1).ravel()
+            pair_columns = np.tile(pairs, (1, 4)).ravel()
+            rows = np.concatenate([rows, pair_rows])
+            columns = np.concatenate([columns, pair_columns])
+        return rows, columns
+
+    def _extended_index_map(self, rows, columns):
+        """The displacement's index map with every partner node of another rank as a ghost,
+        and the map from global to local (block) indices on it."""
+        from dolfinx import cpp
+        index_map = self.V.dofmap.index_map
+        ghosts = np.asarray(index_map.ghosts, dtype=np.int64)
+        last = self.first + self.n_owned
+        outside = np.unique(np.concatenate([rows, columns]))
+        outside = outside[((outside < self.first) | (outside >= last))
+                          & ~np.isin(outside, ghosts)]
+        all_ghosts = np.concatenate([ghosts, outside])
+        owners = np.searchsorted(self._range_starts, all_ghosts, side="right") - 1
+        extended = cpp.common.IndexMap(self.comm, self.n_owned, all_ghosts,
+                                       owners.astype(np.int32))
+        local = {int(g): self.n_owned + i for i, g in enumerate(all_ghosts)}
+
+        def to_local(indices):
+            owned = (indices >= self.first) & (indices < last)
+            out = np.empty(len(indices), dtype=np.int32)
+            out[owned] = indices[owned] - self.first
+            out[~owned] = [local[int(g)] for g in indices[~owned]]
+            return out
+
+        return extended, to_local
 
 def create_stack_problem(comm, stack, mesh_config, contact, law, damping: float,
                          centred: bool = True, **options) -> StackProblem:
