@@ -18,11 +18,10 @@ today's blank's, node for node (tests/test_ply_contact.py).
 from __future__ import annotations
 
 import dataclasses
-import os
 
 import numpy as np
 
-from drape.fe.mesh import BlankMesh
+from drape.fe.mesh import BlankMesh, built_on_root, describe_mesh, single_thread_partitioner
 
 #: facet tags of ply k are the gmsh tags of its boundaries plus k times this
 PLY_TAG_STRIDE = 1000
@@ -73,7 +72,9 @@ def create_stack_mesh(comm, ply_blanks, heights, thicknesses, mesh_config,
     """Mesh the plies (BlankConfig each: :meth:`drape.forming.plies.PlyConfig.blank`) into one
     distributed mesh; ``centred`` moves each rectangle to be centred on the origin (forming).
     An error while meshing on rank 0 is raised on every rank (as create_blank_mesh does)."""
-    payload = _meshed_on_root(comm, ply_blanks, mesh_config, centred)
+    payload = built_on_root(
+        comm, lambda gmsh: _stack_arrays(gmsh, ply_blanks, mesh_config, centred), "a ply",
+        "plies and a mesh.size gmsh can mesh")
     msh, cell_tags, facet_tags, names = _distributed(comm, payload)
     tdim = 2
     # cell values: PLY_TAG_STRIDE * ply + the blank's own tag (blank or blank_strip)
@@ -92,35 +93,12 @@ def create_stack_mesh(comm, ply_blanks, heights, thicknesses, mesh_config,
     if len(ply_blanks) == 1:
         boundaries.update({name: tag for name, tag in names[0].items()
                            if name not in (BLANK, BLANK_STRIP)})
-    description = _description(comm, msh, strip, mesh_config, len(ply_blanks))
+    description = describe_mesh(comm, msh, strip, mesh_config.pattern)
+    if len(ply_blanks) > 1:
+        description = f"{len(ply_blanks)} plies, {description}"
     return StackMesh(msh, facet_tags, boundaries, description, strip, ply_tags=ply_tags,
                      heights=tuple(float(h) for h in heights),
                      thicknesses=tuple(float(t) for t in thicknesses))
-
-
-def _meshed_on_root(comm, ply_blanks, mesh_config, centred):
-    """gmsh meshes every ply on rank 0 (:func:`_stack_arrays`); its arrays there, None on the
-    other ranks. A failure is raised on every rank as an InputError."""
-    import gmsh
-
-    from drape.errors import InputError
-    error, payload = None, None
-    if comm.rank == 0:
-        gmsh.initialize(readConfigFiles=False)
-        gmsh.option.setNumber("General.Terminal", 0)
-        try:
-            payload = _stack_arrays(gmsh, ply_blanks, mesh_config, centred)
-        except InputError as failure:
-            error = failure
-        except Exception as failure:  # gmsh raises plain Exceptions with its log message
-            error = InputError(f"gmsh could not mesh a ply ({failure})", key="mesh",
-                               expected="plies and a mesh.size gmsh can mesh")
-        finally:
-            gmsh.finalize()
-    error = comm.bcast(error, root=0)
-    if error is not None:
-        raise error
-    return payload
 
 
 def _distributed(comm, payload):
@@ -139,8 +117,7 @@ def _distributed(comm, payload):
         cell_values = np.empty(0, dtype=np.int32)
         facets = np.empty((0, facet_nodes), dtype=np.int64)
         facet_values = np.empty(0, dtype=np.int32)
-    # one thread for PT-Scotch: the same partition every run (drape/fe/mesh.py says why)
-    os.environ.setdefault("SCOTCH_PTHREAD_NUMBER", "1")
+    single_thread_partitioner()
     domain = ufl_mesh(cell_id, 2)
     cell_type = _cpp.mesh.to_type(str(domain.ufl_cell()))
     cells = cells[:, cell_perm_array(cell_type, num_nodes)]
@@ -160,18 +137,6 @@ def _distributed(comm, payload):
     facet_tags = tags(tdim - 1, facets, facet_values)
     facet_tags.name = "Facet tags"
     return msh, cell_tags, facet_tags, names
-
-
-def _description(comm, msh, strip, mesh_config, n_plies) -> str:
-    """The stack's mesh in a few words, for the log."""
-    n_local = msh.topology.index_map(2).size_local
-    n_strip = comm.allreduce(int(np.sum(strip < n_local)))
-    description = (f"{msh.topology.index_map(2).size_global} {msh.topology.cell_type.name} "
-                   f"cells, {msh.geometry.index_map().size_global} nodes, "
-                   f"{mesh_config.pattern} pattern"
-                   + (f" ({n_strip} of them in the strip between the yarn lattice and the "
-                      f"outline)" if n_strip else ""))
-    return f"{n_plies} plies, {description}" if n_plies > 1 else description
 
 
 def _stack_arrays(gmsh, ply_blanks, mesh_config, centred):
