@@ -364,7 +364,6 @@ PRESSURE, AREA, PENALTY = 0.1, 400.0, 100.0      # N/mm², mm², N/mm³
 def _pressed_plies(comm, law, smoothing):
     """Two 20 x 20 mm plies 0.4 mm thick on the same 5 mm mesh: the lower one held, the upper
     one pressed on it with PRESSURE, its x and y prescribed (g_x, g_y returned to pull it)."""
-    from dolfinx import fem
     from drape.fe.solver import NewtonSolver
     from drape.fe.stack_mesh import create_stack_mesh
     from drape.fe.stack_problem import StackProblem
@@ -378,19 +377,29 @@ def _pressed_plies(comm, law, smoothing):
     problem = StackProblem(mesh, NestedSurfaceLaw(MaterialParameters()), 0.0, 0.0, [law],
                            penalty=PENALTY, smoothing=smoothing, regularisation=0.05,
                            contributions=[load])
+    ply = problem.ply_contact.nodes.ply[problem.global_nodes]
+    upper = _vertices_of(problem, np.nonzero(ply == 1)[0])
+    pulled = [g for g, _ in hold_lower_pull_upper(problem, 0, upper)]
+    return problem, NewtonSolver(problem, SolverConfig(), force_scale=PRESSURE * AREA), pulled
+
+
+def hold_lower_pull_upper(problem, dim, entities):
+    """problem.bcs: the lower ply (ply 0) held in place, and the x and y of the upper ply's
+    ``entities`` of dimension ``dim`` prescribed; returns, for x and y, the prescribed
+    function (zero until the caller sets it) and its dofs in the problem's space."""
+    from dolfinx import fem
     V = problem.V
     ply = problem.ply_contact.nodes.ply[problem.global_nodes]
     bcs = [fem.dirichletbc(fem.Function(V), np.nonzero(ply == 0)[0].astype(np.int32))]
-    upper = _vertices_of(problem, np.nonzero(ply == 1)[0])
     pulled = []
     for i in range(2):
         sub, _ = V.sub(i).collapse()
         g = fem.Function(sub)
-        dofs = fem.locate_dofs_topological((V.sub(i), sub), 0, upper)
+        dofs = fem.locate_dofs_topological((V.sub(i), sub), dim, entities)
         bcs.append(fem.dirichletbc(g, dofs, V.sub(i)))
-        pulled.append(g)
+        pulled.append((g, dofs[0]))
     problem.bcs = bcs
-    return problem, NewtonSolver(problem, SolverConfig(), force_scale=PRESSURE * AREA), pulled
+    return pulled
 
 
 def _upper_ply_forces(problem):
@@ -493,22 +502,10 @@ def test_a_ply_pulled_by_its_edge_slides_at_mu_p_A(comm):
     Newton converges with the coupled Jacobian (3 to 9 iterations a step: the longer steps
     cross the stick-slip kink of the friction law), the whole ply ends up sliding, the friction
     reaches mu p A, and the edge's reaction balances the friction on the other nodes."""
-    from dolfinx import fem
     from drape.fe.solver import NewtonSolver
     from drape.job import SolverConfig
     problem, _, _ = _pressed_plies(comm, CONSTANT, 0.05)
-    V = problem.V
-    ply = problem.ply_contact.nodes.ply[problem.global_nodes]
-    bcs = [fem.dirichletbc(fem.Function(V), np.nonzero(ply == 0)[0].astype(np.int32))]
-    edge = problem.blank_mesh.facets("ply1.right")
-    pulled = []
-    for i in range(2):
-        sub, _ = V.sub(i).collapse()
-        g = fem.Function(sub)
-        dofs = fem.locate_dofs_topological((V.sub(i), sub), 1, edge)
-        bcs.append(fem.dirichletbc(g, dofs, V.sub(i)))
-        pulled.append((g, dofs[0]))
-    problem.bcs = bcs
+    pulled = hold_lower_pull_upper(problem, 1, problem.blank_mesh.facets("ply1.right"))
     solver = NewtonSolver(problem, SolverConfig(), force_scale=PRESSURE * AREA)
     edge_x = pulled[0][1][pulled[0][1] < 3 * problem.n_owned]
     edge_x = edge_x[edge_x % 3 == 0]
