@@ -3,17 +3,19 @@
 and the draw-in of rigidly translated plies against -d . X/|X|; per interface the summaries of
 two plies pressed together and pulled over each other against p A, A, the friction work
 sum mu p A min(d/delta, 1) Delta and the slip, the nodal fields' integrals against the
-summaries; the XDMF read back with h5py; 1 rank equals 2."""
+summaries; the XDMF read back with h5py; 1 rank equals 2; ParaView showing one ply."""
 
 import math
 
 import numpy as np
+import pytest
 
 from drape.forming.plies import load_stack
 from drape.forming.ply_contact import EDGE_RAMP
 from drape.forming.stack_reports import (StackFields, interface_summaries, owned_node_plies,
                                          ply_summaries)
 from drape.job import MeshConfig
+from test_paraview import drape, paraview  # noqa: F401  (the fixture: ParaView installed)
 from test_ply_contact import CONSTANT, PENALTY, PRESSURE, _pressed_plies
 
 #: ply 0 a 20 x 20 mm square, ply 1 a disc of radius 8 mm on it; 2.5 mm elements
@@ -259,3 +261,57 @@ def test_one_rank_equals_two(comm):
         scale = max(1e-12, max(abs(v) for v in nodal1[name].values()))
         for node, value in nodal1[name].items():
             assert abs(value - nodal2[name][node]) <= 1e-10 * scale, (name, node)
+
+
+@pytest.mark.serial
+def test_drape_view_ply_checks_its_argument(tmp_path, capsys):
+    from drape import cli, view
+    (tmp_path / "fields.xdmf").write_text('<?xml version="1.0"?><Xdmf><Attribute '
+                                          'Name="shear_angle_deg"/></Xdmf>')
+    (tmp_path / "fields.h5").write_bytes(b"")
+    assert cli.main(["view", str(tmp_path), "--ply", "1"]) == 2
+    assert "not the results of a stack" in capsys.readouterr().err
+    assert cli.main(["view", str(tmp_path), "--ply", "-1"]) == 2
+    assert "not a ply" in capsys.readouterr().err
+    (tmp_path / "fields.xdmf").write_text('<?xml version="1.0"?><Xdmf><Attribute Name="ply"/>'
+                                          '</Xdmf>')
+    (tmp_path / "summary.json").write_text('{"plies": [{}, {}]}')
+    assert cli.main(["view", str(tmp_path), "--ply", "2"]) == 2
+    assert "no ply 2: the stack has 2 plies" in capsys.readouterr().err
+    view.check_ply(tmp_path, 1)
+
+    class Args:
+        time, ply = None, 1
+    assert view.script_arguments(Args, tmp_path, 40.0)[-2:] == ["--ply", "1"]
+
+
+@pytest.mark.serial
+@pytest.mark.slow
+@pytest.mark.usefixtures("paraview")
+def test_drape_view_shows_one_ply(tmp_path):
+    """A stack's fields written by the writer (ply 0 sheared 10 deg, ply 1 30 deg): `drape view
+    --ply N --screenshot` shows ply N's cells only (the caption's cell count and largest shear
+    are ply N's), without --ply both plies; --ply 2 is refused by ParaView's script (exit 2)."""
+    from mpi4py import MPI
+
+    from drape.io.writer import ResultsWriter
+    comm = MPI.COMM_SELF
+    problem = _stack_problem(comm)
+    _prescribe(problem, _simple_shear)
+    writer = ResultsWriter(tmp_path, problem, snapshot="none", extra_fields=StackFields(problem))
+    writer.write_fields(1.0)
+    writer.close()
+    cells = np.bincount(problem.blank_mesh.cell_plies()[: problem.n_cells]).tolist()
+    for ply, largest, locked, shown in ((0, 10.0, 0, cells[0]), (1, 30.0, cells[1], cells[1]),
+                                        (None, 30.0, cells[1], sum(cells))):
+        png = tmp_path / f"ply_{ply}.png"
+        extra = [] if ply is None else ["--ply", ply]
+        done = drape("view", tmp_path, "--screenshot", png, "--locking-angle", LOCKING_DEG,
+                     *extra)
+        assert done.returncode == 0, done.stderr
+        name = tmp_path.name + ("" if ply is None else f" ply {ply}")
+        assert f"{name}: t = 1, largest shear angle magnitude {largest:.2f} deg" in done.stdout
+        assert f"({locked} of {shown} cells past it)" in done.stdout, done.stdout
+        assert png.stat().st_size > 10_000
+    done = drape("view", tmp_path, "--screenshot", tmp_path / "none.png", "--ply", 2)
+    assert done.returncode == 2 and "no ply 2: the stack has plies 0 to 1" in done.stderr
