@@ -86,6 +86,28 @@ def test_each_ply_reports_its_own_shear(comm):
     assert [ply["cells"] for ply in plies] == cells.tolist() and cells[0] == 64
 
 
+def test_each_ply_gets_its_own_shear_maps(comm, tmp_path):
+    """The gathered cells of the prescribed shear: ply k's cells all at gamma_k; each ply's
+    maps written (shear_flat_ply{k}.png, shear_formed_ply{k}.png)."""
+    from drape.forming.stack_reports import gather_ply_cells, plot_ply_shear_maps
+    problem = _stack_problem(comm)
+    _prescribe(problem, _simple_shear)
+    cells = gather_ply_cells(problem)
+    counts = comm.allreduce(np.bincount(problem.blank_mesh.cell_plies()[: problem.n_cells],
+                                        minlength=2))
+    if comm.rank != 0:
+        assert cells is None
+        return
+    assert np.bincount(cells["ply"]).tolist() == counts.tolist()
+    for k, gamma in enumerate(SHEAR_DEG):
+        assert np.allclose(np.abs(cells["shear"][cells["ply"] == k]), gamma, rtol=0,
+                           atol=1e-10)
+    plot_ply_shear_maps(tmp_path, cells, LOCKING_DEG, "two plies")
+    written = sorted(path.name for path in tmp_path.glob("*.png"))
+    assert written == ["shear_flat_ply0.png", "shear_flat_ply1.png", "shear_formed_ply0.png",
+                       "shear_formed_ply1.png"]
+
+
 def test_the_whole_stack_shear_summary_is_unchanged(comm):
     """shear_summary without a mask: every cell, the largest over both plies."""
     from drape.forming.reports import shear_summary

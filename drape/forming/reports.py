@@ -193,13 +193,16 @@ def plot_force_stroke(folder: Path, rows: list, title: str) -> None:
     plt.close(fig)
 
 
-def plot_shear_maps(folder: Path, cells: dict, locking_angle: float, title: str) -> None:
+def plot_shear_maps(folder: Path, cells: dict, locking_angle: float, title: str,
+                    suffix: str = "") -> None:
     """shear_formed.png (the formed part seen from above and in perspective) and shear_flat.png
     (the flat blank: where the fabric will shear), |shear angle| per cell, the locking angle
-    drawn as a contour."""
+    drawn as a contour; ``suffix`` goes before ".png" (one ply's maps: "_ply1")."""
     colours = _ShearColours(np.abs(cells["shear"]), locking_angle)
-    _plot_shear_flat(Path(folder) / "shear_flat.png", cells["reference"], colours, title)
-    _plot_shear_formed(Path(folder) / "shear_formed.png", cells["formed"], colours, title)
+    _plot_shear_flat(Path(folder) / f"shear_flat{suffix}.png", cells["reference"], colours,
+                     title)
+    _plot_shear_formed(Path(folder) / f"shear_formed{suffix}.png", cells["formed"], colours,
+                       title)
 
 
 class _ShearColours:

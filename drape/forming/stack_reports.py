@@ -7,6 +7,7 @@ show them (docs/plies.md, "Outputs").
 * :func:`interface_summaries`: per interface, what :meth:`PlyContact.report` gives on each
   rank (nodes in contact, contact area, normal force, friction work, largest penetration)
   summed over the ranks, and the largest accumulated slip.
+* :func:`gather_ply_cells` and :func:`plot_ply_shear_maps`: the shear maps (PNG) of each ply.
 * :class:`StackFields`: a DG0 field ``ply`` (each cell's ply) and, per interface k, nodal (P1)
   fields ``interface{k}_pressure``, ``interface{k}_slip`` and ``interface{k}_accumulated_slip``
   for the results writer.
@@ -26,7 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from drape.forming.reports import edge_draw_in, edge_points, shear_summary
+from drape.forming.reports import (edge_draw_in, edge_points, gather_cells, plot_shear_maps,
+                                   shear_summary)
 
 
 def owned_node_plies(problem) -> np.ndarray:
@@ -64,6 +66,26 @@ def ply_summaries(problem, stack, locking_angle_deg: float, comm) -> list[dict]:
         entry["draw_in_mm"] = edge_draw_in(X[mine], u[mine], edge_points(ply.blank()), comm)
         out.append(entry)
     return out
+
+
+def gather_ply_cells(problem) -> dict | None:
+    """:func:`drape.forming.reports.gather_cells` (every cell's outlines, shear angle, ...) and
+    each cell's ply ("ply"), on rank 0 (None elsewhere)."""
+    cells = gather_cells(problem)
+    plies = problem.comm.gather(problem.blank_mesh.cell_plies()[: problem.n_cells], root=0)
+    if cells is None:
+        return None
+    cells["ply"] = np.concatenate(plies)
+    return cells
+
+
+def plot_ply_shear_maps(folder, cells: dict, locking_angle: float, title: str) -> None:
+    """Per ply k, shear_flat_ply{k}.png and shear_formed_ply{k}.png: the shear maps of its
+    cells alone (``cells`` of :func:`gather_ply_cells`; rank 0)."""
+    for k in np.unique(cells["ply"]):
+        mine = cells["ply"] == k
+        plot_shear_maps(folder, {name: values[mine] for name, values in cells.items()},
+                        locking_angle, f"{title} ply {k}".strip(), suffix=f"_ply{k}")
 
 
 def interface_summaries(problem, comm) -> list[dict]:
