@@ -86,6 +86,27 @@ def test_each_ply_reports_its_own_shear(comm):
     assert [ply["cells"] for ply in plies] == cells.tolist() and cells[0] == 64
 
 
+def test_a_one_ply_stack_reports_as_todays_blank(comm):
+    """One ply under a smooth displacement: its summary is reports.shear_summary's and
+    reports.draw_in's for the blank, value for value; no interface, only the ply field."""
+    from drape.forming.reports import draw_in, shear_summary
+    stack = load_stack({"plies": [{"thickness": 0.3, "orientation": 0.0, "length": 30.0,
+                                   "width": 20.0}]})
+    problem = _stack_problem(comm, stack)
+    _prescribe(problem, lambda X, ply: np.column_stack([
+        0.3 * np.sin(X[:, 1] / 4.0) + 0.02 * X[:, 0], -0.01 * X[:, 1] ** 2 / 10.0,
+        0.2 * np.cos(X[:, 0] / 5.0)]))
+    (ply,) = ply_summaries(problem, stack, LOCKING_DEG, comm)
+    today = comm.bcast(shear_summary(problem, 3.0, comm), root=0)
+    (low,) = ply_summaries(problem, stack, 3.0, comm)
+    assert today["max_shear_angle_deg"] > 3.0 and today["area_above_locking_mm2"] > 0.0
+    for key, value in today.items():
+        assert low["ply_area_mm2" if key == "blank_area_mm2" else key] == value, key
+    assert ply["draw_in_mm"] == draw_in(problem, stack.plies[0].blank(), comm)["draw_in_mm"]
+    assert interface_summaries(problem, comm) == []
+    assert list(StackFields(problem).functions) == ["ply"]
+
+
 def test_each_ply_gets_its_own_shear_maps(comm, tmp_path):
     """The gathered cells of the prescribed shear: ply k's cells all at gamma_k; each ply's
     maps written (shear_flat_ply{k}.png, shear_formed_ply{k}.png)."""
