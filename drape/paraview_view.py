@@ -18,6 +18,8 @@ What it draws:
   zones stand out, and the colour bar carries the annotations "+L locking" / "-L locking".
 * The lines |shear angle| = L (contours of the shear angle averaged to the nodes), in black.
 * A caption: results folder, load factor t, largest |shear angle| and the locking angle.
+* ``--ply N`` (a stack of plies): only the cells of ply N (a threshold on the DG0 cell field
+  ``ply`` the stack's results carry), its shear map and lines; the caption names the ply.
 """
 
 import argparse
@@ -66,7 +68,32 @@ def parse(argv):
     parser.add_argument("--size", default="1200x900", help="screenshot size in pixels, WxH")
     parser.add_argument("--time", type=float, default=None,
                         help="load factor to show (default: the last written step)")
+    parser.add_argument("--ply", type=int, default=None,
+                        help="a stack's results: show ply N only (0 the bottom ply)")
     return parser.parse_args(argv)
+
+
+class NoSuchPly(Exception):
+    """--ply names a ply the results do not have (or they are not a stack's)."""
+
+
+def one_ply(fields, ply):
+    """The cells of ply ``ply`` of the merged fields: a threshold on the cell field "ply"."""
+    from paraview import simple as pv
+
+    data = pv.servermanager.Fetch(fields)
+    plies = data.GetCellData().GetArray("ply")
+    if plies is None:
+        raise NoSuchPly("these results have no cell field 'ply' (not a stack of plies)")
+    top = int(round(plies.GetRange()[1]))
+    if not 0 <= ply <= top:
+        raise NoSuchPly(f"no ply {ply}: the stack has plies 0 to {top}")
+    only = pv.Threshold(registrationName=f"ply {ply}", Input=fields)
+    only.Scalars = ["CELLS", "ply"]
+    only.LowerThreshold = ply - 0.5
+    only.UpperThreshold = ply + 0.5
+    only.ThresholdMethod = "Between"
+    return only
 
 
 def merged_fields(reader):
@@ -79,12 +106,17 @@ def merged_fields(reader):
     return merge
 
 
-def build(results, locking_angle, time=None, offscreen=False):
-    """The pipeline and the render view; returns (view, info dict)."""
+def build(results, locking_angle, time=None, offscreen=False, ply=None):
+    """The pipeline and the render view (of ply ``ply`` only if given); returns (view, info
+    dict)."""
     from paraview import simple as pv
 
     reader, times, t = open_fields(results, time, offscreen)
     fields = merged_fields(reader)
+    if ply is not None:
+        fields.UpdatePipeline(t)
+        fields = one_ply(fields, ply)
+    fields.UpdatePipeline(t)
     warped = pv.WarpByVector(registrationName="warped by displacement", Input=fields)
     warped.Vectors = ["POINTS", "displacement"]
     warped.ScaleFactor = 1.0
@@ -95,7 +127,8 @@ def build(results, locking_angle, time=None, offscreen=False):
     show_locking_lines(warped, view, locking_angle)
     low, high, locked, cells = shear_summary(fields, locking_angle)
     largest = builtins.max(builtins.abs(low), builtins.abs(high))
-    caption = (f"{os.path.basename(os.path.abspath(results))}: t = {t:.4g}, "
+    shown = "" if ply is None else f" ply {ply}"
+    caption = (f"{os.path.basename(os.path.abspath(results))}{shown}: t = {t:.4g}, "
                f"largest shear angle magnitude {largest:.2f} deg, "
                f"locking angle {locking_angle:g} deg "
                f"({locked} of {cells} cells past it)")
@@ -103,7 +136,7 @@ def build(results, locking_angle, time=None, offscreen=False):
     place_camera(warped, view)
     pv.SetActiveSource(warped)
     info = {"time": t, "times": times, "shear_range": (low, high), "locked_cells": locked,
-            "cells": cells, "caption": caption}
+            "cells": cells, "caption": caption, "ply": ply}
     return view, info
 
 
@@ -115,6 +148,8 @@ def open_fields(results, time, offscreen):
     path = os.path.join(os.path.abspath(results), "fields.xdmf")
     reader = pv.Xdmf3ReaderS(registrationName="fields.xdmf", FileName=[path])
     values = reader.TimestepValues
+    if isinstance(values, (int, float)):     # a file of one written step: a number, no list
+        values = [values]
     times = [float(v) for v in values] if len(values) else [0.0]
     t = times[-1] if time is None else builtins.min(times,
                                                     key=lambda value: builtins.abs(value - time))
@@ -231,7 +266,12 @@ def main(argv=None):
         print(f"paraview_view.py: no fields.xdmf in {args.results}", file=sys.stderr)
         return 2
     from paraview import simple as pv
-    view, info = build(args.results, args.locking_angle, args.time, offscreen=bool(args.screenshot))
+    try:
+        view, info = build(args.results, args.locking_angle, args.time,
+                           offscreen=bool(args.screenshot), ply=args.ply)
+    except NoSuchPly as error:
+        print(f"paraview_view.py: {error}", file=sys.stderr)
+        return 2
     if args.screenshot:
         width, height = (int(v) for v in args.size.lower().split("x"))
         view.ViewSize = [width, height]

@@ -9,7 +9,8 @@ at the last written load step.
 ParaView is Debian's (`apt-get install paraview python3-paraview`, plus `xvfb` for screenshots
 on a machine without a display); drape runs its shipped script drape/paraview_view.py with
 ParaView's `pvpython` (or `paraview --script=`). Without a display and without a screenshot,
-the command to run on a machine with one is printed. See docs/viewing.md.
+the command to run on a machine with one is printed. A stack's results (a job with
+``[[plies]]``) carry a cell field ``ply``; ``--ply N`` shows ply N only. See docs/viewing.md.
 """
 
 from __future__ import annotations
@@ -50,6 +51,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--time", type=float, default=None, metavar="T",
                         help="load factor t in [0, 1] to show; the nearest written step "
                              "(default: the last written step)")
+    parser.add_argument("--ply", type=int, default=None, metavar="N",
+                        help="a stack of plies: show ply N only (0 the bottom ply, on the die)")
 
 
 def locking_angle(results: Path, given: float | None) -> float:
@@ -91,6 +94,28 @@ def check_results(folder: str) -> Path:
     return path
 
 
+def check_ply(results: Path, ply: int | None) -> None:
+    """--ply N: N >= 0, the results a stack's (fields.xdmf has the cell field "ply") and N
+    below summary.json's number of plies when it lists them (ParaView checks it otherwise)."""
+    if ply is None:
+        return
+    if ply < 0:
+        raise InputError("not a ply", key="--ply", value=ply,
+                         expected="a ply's index, 0 for the bottom ply")
+    if 'Name="ply"' not in (results / "fields.xdmf").read_text(errors="replace"):
+        raise InputError("no cell field 'ply' in fields.xdmf: not the results of a stack",
+                         source=str(results), key="--ply",
+                         expected="the results of a job with [[plies]], or no --ply")
+    summary = results / "summary.json"
+    try:
+        plies = json.loads(summary.read_text()).get("plies") if summary.is_file() else None
+    except (OSError, ValueError, AttributeError):
+        plies = None
+    if isinstance(plies, list) and ply >= len(plies):
+        raise InputError(f"no ply {ply}: the stack has {len(plies)} plies", key="--ply",
+                         value=ply, expected=f"0 to {len(plies) - 1}")
+
+
 def parse_size(text: str) -> tuple[int, int]:
     try:
         width, height = (int(v) for v in text.lower().split("x"))
@@ -106,12 +131,15 @@ def script_arguments(args, results: Path, angle: float) -> list[str]:
     extra = [str(results.resolve()), "--locking-angle", repr(angle)]
     if args.time is not None:
         extra += ["--time", repr(args.time)]
+    if getattr(args, "ply", None) is not None:
+        extra += ["--ply", str(args.ply)]
     return extra
 
 
 def main(args) -> int:
     results = check_results(args.results)
     angle = locking_angle(results, args.locking_angle)
+    check_ply(results, args.ply)
     width, height = parse_size(args.size)
     if args.time is not None and not (math.isfinite(args.time) and 0 <= args.time <= 1):
         raise InputError("not a load factor", key="--time", value=args.time,
@@ -149,6 +177,9 @@ def screenshot(target: str, pvpython: str, extra: list[str], width: int, height:
                               stdin=subprocess.DEVNULL)
         if done.returncode == 0 and png.is_file():
             break
+        if done.returncode == 2:        # the script refused its input (e.g. no such ply)
+            lines = (done.stderr or "").strip().splitlines() or ["the script refused its input"]
+            raise InputError(lines[-1].replace("paraview_view.py: ", "ParaView: "))
         # pvpython under Xvfb occasionally aborts while creating its GL context (about 1
         # run in 10 on a loaded machine, not reproducible on demand): one more attempt
         print(f"drape view: ParaView exited with code {done.returncode} without a picture"

@@ -72,6 +72,9 @@ def create_stack_mesh(comm, ply_blanks, heights, thicknesses, mesh_config,
     """Mesh the plies (BlankConfig each: :meth:`drape.forming.plies.PlyConfig.blank`) into one
     distributed mesh; ``centred`` moves each rectangle to be centred on the origin (forming).
     An error while meshing on rank 0 is raised on every rank (as create_blank_mesh does)."""
+    # DOLFINx imported on every rank before rank 0 meshes alone: its first import initialises
+    # PETSc, a collective that would otherwise meet the other ranks' broadcast (a crash)
+    import dolfinx.io.gmshio  # noqa: F401
     payload = built_on_root(
         comm, lambda gmsh: _stack_arrays(gmsh, ply_blanks, mesh_config, centred), "a ply",
         "plies and a mesh.size gmsh can mesh")

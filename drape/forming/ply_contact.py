@@ -320,11 +320,14 @@ class PlyContact:
         """Of the last evaluation, the state of every pair (0 separated, 1 stick, 2 slip)."""
         return self.last("state").astype(int)
 
-    def last(self, name: str) -> np.ndarray:
-        """Of the last evaluation, one quantity of every pair this rank evaluated, all
-        directions: "slaves", "gap" (mm), "pressure" (N/mm²), "weight" (the reference area the
-        pair carries, mm²), "state", "slip" and "normal" ((P, 3))."""
-        parts = [trial[name] for trial in self._trial if trial is not None]
+    def last(self, name: str, direction: int | None = None) -> np.ndarray:
+        """Of the last evaluation, one quantity of every pair this rank evaluated, of all
+        directions or of ``direction`` (an index into :attr:`directions`): "slaves", "gap"
+        (mm), "pressure" (N/mm²), "weight" (the reference area the pair carries, mm²),
+        "state", "slip", "slip_increment" (the step's tangential relative motion) and "normal"
+        ((P, 3))."""
+        trials = self._trial if direction is None else [self._trial[direction]]
+        parts = [trial[name] for trial in trials if trial is not None]
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def report(self) -> dict:

@@ -71,14 +71,19 @@ def strip_summary(cells: dict, yarn_angle: float) -> dict:
             "max_yarn_strain_aligned": float(strain[~strip].max()) if (~strip).any() else 0.0}
 
 
-def shear_summary(problem, locking_angle: float, comm) -> dict:
+def shear_summary(problem, locking_angle: float, comm, cells=None) -> dict:
     """Largest |shear angle| at the law's points and where (flat blank X, Y and formed x, y, z
-    of its cell's centre); the reference area above the locking angle."""
+    of its cell's centre); the reference area above the locking angle. ``cells``: a boolean
+    mask over the local cells to summarise (one ply of a stack), default all."""
     gamma = np.abs(problem.response.gamma_t_deg)
     areas = (problem._average_weights * problem.cell_areas[:, None]).ravel()
+    if cells is not None:
+        # points outside the mask: no area, and below any angle (-1 marks "none" below)
+        points = np.repeat(np.asarray(cells, dtype=bool), problem.nq)
+        gamma, areas = np.where(points, gamma, -1.0), np.where(points, areas, 0.0)
     locked = float(areas[gamma > locking_angle].sum())
     total = float(areas.sum())
-    if gamma.size:
+    if gamma.size and (cells is None or gamma.max() >= 0.0):
         i = int(np.argmax(gamma))
         cell = i // problem.nq
         V = problem.V
@@ -188,13 +193,16 @@ def plot_force_stroke(folder: Path, rows: list, title: str) -> None:
     plt.close(fig)
 
 
-def plot_shear_maps(folder: Path, cells: dict, locking_angle: float, title: str) -> None:
+def plot_shear_maps(folder: Path, cells: dict, locking_angle: float, title: str,
+                    suffix: str = "") -> None:
     """shear_formed.png (the formed part seen from above and in perspective) and shear_flat.png
     (the flat blank: where the fabric will shear), |shear angle| per cell, the locking angle
-    drawn as a contour."""
+    drawn as a contour; ``suffix`` goes before ".png" (one ply's maps: "_ply1")."""
     colours = _ShearColours(np.abs(cells["shear"]), locking_angle)
-    _plot_shear_flat(Path(folder) / "shear_flat.png", cells["reference"], colours, title)
-    _plot_shear_formed(Path(folder) / "shear_formed.png", cells["formed"], colours, title)
+    _plot_shear_flat(Path(folder) / f"shear_flat{suffix}.png", cells["reference"], colours,
+                     title)
+    _plot_shear_formed(Path(folder) / f"shear_formed{suffix}.png", cells["formed"], colours,
+                       title)
 
 
 class _ShearColours:

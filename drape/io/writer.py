@@ -4,8 +4,10 @@
   then per written step the displacement (mm, nodal) and cell fields (DG0): the shear angle
   gamma_t and the plastic shear angle gamma_p (deg), tau and the yarn tensions S11, S22 (N/mm),
   the deformed warp and weft directions (unit vectors), the active surface (-1 elastic, k the
-  surface index; a cell average of its points) -- quadrature values averaged over each cell.
-  The file is closed after every step, so it is readable whenever a step has converged.
+  surface index; a cell average of its points) -- quadrature values averaged over each cell;
+  for a stack of plies also the DG0 ``ply`` and each interface's nodal pressure and slips
+  (``extra_fields``, :mod:`drape.forming.stack_reports`). The file is closed after every
+  step, so it is readable whenever a step has converged.
 * ``steps.csv``: one row per converged step (written and flushed as it converges).
 * ``result.npz``: fields gathered on rank 0 and sorted by coordinates, independent of the
   number of ranks (nodes: x, y, u; law points: x, y, tau, gamma_p, gamma_t, ...).
@@ -27,11 +29,14 @@ SNAPSHOT_FILE = "result.npz"
 class ResultsWriter:
     def __init__(self, folder: Path, problem, *, xdmf: bool = True, xdmf_every: int = 1,
                  snapshot: str = "final", append: bool = False,
-                 extra_cell_fields: dict | None = None):
+                 extra_cell_fields: dict | None = None, extra_fields=None):
         """``append``: continue the files of a resumed run (rewound to its checkpoint by
         :func:`drape.io.rewind.rewind_outputs`) instead of starting them.
         ``extra_cell_fields``: {name: function returning one value per local cell}, written
-        as DG0 fields next to the law's (e.g. the contact pressure of a forming job)."""
+        as DG0 fields next to the law's (e.g. the contact pressure of a forming job).
+        ``extra_fields``: an object with ``functions`` ({name: DOLFINx Function}) and
+        ``update()``, called before each write (a stack's
+        :class:`~drape.forming.stack_reports.StackFields`), its functions written too."""
         from dolfinx import fem, io
 
         self.folder = Path(folder)
@@ -53,6 +58,7 @@ class ResultsWriter:
                 ("warp_tension", W0), ("weft_tension", W0), ("active_surface", W0),
                 ("warp_direction", W3), ("weft_direction", W3))}
         self.extra_cell_fields = dict(extra_cell_fields or {})
+        self.extra_fields = extra_fields
         for name in self.extra_cell_fields:
             self.cell_fields[name] = fem.Function(W0, name=name)
         n = problem.n_cells
@@ -137,6 +143,13 @@ class ResultsWriter:
             function.x.array[(self._dg3[:, None] * 3 + np.arange(3)).ravel()] = average.ravel()
             function.x.scatter_forward()
 
+    def extra_functions(self) -> list:
+        """The functions of ``extra_fields``, updated (none without it)."""
+        if self.extra_fields is None:
+            return []
+        self.extra_fields.update()
+        return list(self.extra_fields.functions.values())
+
     def write_fields(self, t: float) -> None:
         from dolfinx import io
         self.update_cell_fields()
@@ -144,6 +157,8 @@ class ResultsWriter:
         try:
             stream.write_function(self.problem.u, t)
             for function in self.cell_fields.values():
+                stream.write_function(function, t)
+            for function in self.extra_functions():
                 stream.write_function(function, t)
             stream.close()
         except RuntimeError:
