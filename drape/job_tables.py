@@ -58,11 +58,9 @@ class StepsConfig:
 class SolverConfig:
     """Newton's method (PETSc SNES, options prefix ``drape_``) and its linear solver."""
 
-    linear: Literal["direct", "iterative", "tangent_split"] = setting(
+    linear: Literal["direct", "iterative"] = setting(
         "direct", "'direct': LU with MUMPS; 'iterative' (large meshes): GMRES with a field "
-        "split, GAMG with the rigid-body near-nullspace in the plane, GAMG out of it; "
-        "'tangent_split': GMRES with MUMPS on the tangential and the normal dofs apart, in "
-        "each node's tangent frame")
+        "split, GAMG with the rigid-body near-nullspace in the plane, GAMG out of it")
     max_iterations: int = setting(20, "Newton iterations per step before a cutback", positive)
     rtol: float = setting(1e-10, "convergence: residual norm relative to the step's first",
                           positive)

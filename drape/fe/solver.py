@@ -41,12 +41,6 @@ def default_options(config, force_scale: float) -> dict[str, str]:
                         "pc_factor_mat_solver_type": "mumps",
                         # MUMPS: a singular pivot is a failed step, not a wrong answer
                         "mat_mumps_icntl_24": 0})
-    elif config.linear == "tangent_split":
-        # GMRES on the Jacobian, preconditioned by drape.fe.tangent_split (the membrane and the
-        # bending hinges factored apart in the local tangent frame; the PC is set in code)
-        options.update({"ksp_type": "gmres", "ksp_pc_side": "right", "ksp_gmres_restart": 100,
-                        "ksp_rtol": 1e-6, "ksp_atol": 0.1 * config.atol * force_scale,
-                        "ksp_max_it": 200})
     else:
         # GMRES (the out-of-plane block is indefinite where the membrane is in compression)
         # preconditioned by a field split: the in-plane block by GAMG with the in-plane
@@ -187,23 +181,13 @@ class NewtonSolver:
         self.snes = snes = PETSc.SNES().create(problem.comm)
         snes.setOptionsPrefix(PREFIX)
         self.b = problem.create_vector()
-        # the tangent split converts the Jacobian to AIJ itself: BAIJ assembles faster
-        self.A = problem.create_matrix("baij" if config.linear == "tangent_split"
-                                       else jacobian_matrix_type(self.options))
+        self.A = problem.create_matrix(jacobian_matrix_type(self.options))
         # SNES's own iterate: the residual callback copies trial points (the line search's
         # too) into the problem's displacement, which must therefore not be this vector
         self.x = problem.u.vector.duplicate()
         if config.linear == "iterative":
             self.A.setNearNullSpace(rigid_body_modes(problem.V))
             split_in_plane(problem.V, snes.getKSP().getPC())
-        elif config.linear == "tangent_split":
-            from drape.fe.tangent_split import TangentSplitPC
-            pc = snes.getKSP().getPC()
-            pc.setType("python")
-            import os
-            self.tangent_split = TangentSplitPC(
-                problem, drop_hinges=os.environ.get("DRAPE_TS_KEEP") is None)
-            pc.setPythonContext(self.tangent_split)
         snes.setConvergenceHistory(reset=True)   # its first entry: the residual started from
         snes.setFunction(self._residual, self.b)
         snes.setJacobian(problem.jacobian, self.A)
