@@ -214,6 +214,7 @@ def test_the_jacobian_of_plies_with_their_own_angle_and_law(comm):
     assert comm.allreduce(int(np.sum(problem.response.active_surface < 0))) == 0
     error = central_difference(problem, x, direction)
     error.axpy(-1.0, action)
+    print(f"|FD - J d| / |J d| = {error.norm() / action.norm():.2g}")
     assert error.norm() <= 1e-8 * action.norm()
 
 
@@ -273,3 +274,33 @@ def test_ply_materials_and_the_stiffest_plys_penalty(comm, tmp_path):
     assert problem.ply_contact.penalty == 1.5 * 9000.0 / MESH.size ** 2
     same = create_stack_problem(comm, stack, MESH, ContactParameters(), laws[0], 1e-3)
     assert same.laws == (laws[0],) * 3 and same.ply_contact.penalty == 10000.0 / MESH.size ** 2
+
+
+def test_the_jacobian_of_a_pressed_stack_with_its_own_angles_and_laws(comm):
+    """create_stack_problem with plies at 45 and 0 deg, the paper's and the stiff law, the
+    upper ply pressed into the lower and shifted: the contact's and the per-ply membrane's
+    Jacobian together against central differences of the residual."""
+    from drape.fe.stack_problem import create_stack_problem
+    from drape.forming.contact import ContactParameters
+    stack = load_stack({"plies": [{"thickness": 0.4, **SQUARE, "orientation": 45.0},
+                                  {"thickness": 0.4, "shape": "disc", "radius": 7.0}]})
+    laws = [NestedSurfaceLaw(MaterialParameters()), NestedSurfaceLaw(STIFF)]
+    problem = create_stack_problem(comm, stack, MESH, ContactParameters(), laws[0], 1e-3,
+                                   ply_laws=laws)
+    problem.u.interpolate(lambda x: np.vstack([0.05 * np.sin(x[1] / 3 + 1) + 0.02 * x[0],
+                                               0.04 * np.cos(x[0] / 4),
+                                               0.03 * np.sin(x[0] / 5) * np.cos(x[1] / 6)]))
+    values = problem.u.x.array.reshape(-1, 3)
+    values[problem.ply_contact.nodes.ply[problem.global_nodes] == 1] += [0.07, 0.0, -0.03]
+    problem.u.x.scatter_forward()
+    problem.begin_step()
+    x = problem.u.vector.copy()
+    direction = x.duplicate()
+    direction.array[:] = np.random.default_rng(comm.rank).normal(size=direction.array.shape)
+    action = jacobian_action(problem, x, direction)
+    pairs = comm.allreduce(problem.ply_contact.counts["pairs"])
+    error = central_difference(problem, x, direction)
+    error.axpy(-1.0, action)
+    print(f"{pairs} pairs, |FD - J d| / |J d| = {error.norm() / action.norm():.2g}")
+    assert pairs > 20
+    assert error.norm() <= 1e-8 * action.norm()
