@@ -18,6 +18,12 @@ energy W_b (:mod:`drape.fe.bending`):
     R(u; v) = int S : sym(F^T grad v) dA + int k (u_z - u_z,last) v_z dA - sum_c int f_c . v dA
               + d/du W_b(u; v).
 
+On a stack of plies (:class:`~drape.fe.stack_mesh.StackMesh`) every ply may have its own yarn
+angle theta and its own law: where the plies' values differ, cos theta, sin theta and
+mu K1 / 2, mu K2 / 2 are DG0 functions (per cell, from its ply) instead of numbers, and the law
+runs on each ply's points with that ply's parameters (drape/law/piecewise.py). Where the
+plies share them the forms and the law are a single ply's, value for value.
+
 S11 and S22 are written in UFL; tau and its consistent tangent d tau / d C12 come from the numpy
 law at the quadrature points. Every residual evaluation computes the yarn-frame C at the
 quadrature points (a compiled :class:`dolfinx.fem.Expression`), runs the law from the
@@ -41,6 +47,7 @@ exact for linear triangles). The regularisation and point contributions
 from __future__ import annotations
 
 import time
+from typing import Sequence
 
 import numpy as np
 
@@ -54,20 +61,23 @@ LAW_DEGREE = {"quadrilateral": 2, "triangle": 1}
 class MembraneProblem:
     """Spaces, state, forms and the SNES callbacks of the membrane on a :class:`BlankMesh`."""
 
-    def __init__(self, blank_mesh, law, yarn_angle_deg: float, damping: float,
+    def __init__(self, blank_mesh, law, yarn_angle_deg: float | Sequence[float], damping: float,
                  contributions: list[PointContribution] | None = None,
                  jit_params: dict | None = None,
                  bending_rigidity: float = 0.0, inertia: bool = False,
                  neutral_loading_band: float = 0.0):
-        """``neutral_loading_band`` (rad): :func:`neutral_loading_tangent`'s band for Newton's
-        Jacobian; 0 keeps the law's consistent tangent everywhere."""
+        """``law``: one :class:`~drape.law.nested_surface.NestedSurfaceLaw` for every cell, or
+        a sequence of them, one per ply of a stack (the cells mapped by
+        ``blank_mesh.cell_plies()``); ``yarn_angle_deg`` (deg, from x to the warp) likewise one
+        or one per ply. ``neutral_loading_band`` (rad): :func:`neutral_loading_tangent`'s band
+        for Newton's Jacobian; 0 keeps the law's consistent tangent everywhere."""
         import ufl
         from dolfinx import fem
 
         self.blank_mesh = blank_mesh
         self.mesh = blank_mesh.mesh
         self.comm = self.mesh.comm
-        self.law = law
+        self._plies(law, yarn_angle_deg)
         self.damping = float(damping)
         self.neutral_loading_band = float(neutral_loading_band)
         self.contributions = list(contributions or [])
@@ -75,11 +85,11 @@ class MembraneProblem:
                                       "residual_assembly",
                                       "jacobian_assembly"), 0.0)
         self.counts = dict.fromkeys(("residual", "jacobian", "law"), 0)
-        self.yarn_angle_deg = float(yarn_angle_deg)
         self.bending_rigidity = float(bending_rigidity)
         jit = dict(jit_params or {})
 
         areas_with_ghosts = self._quadrature(jit)
+        self._point_law()
         self._spaces_and_state()
         u, v, du = self.u, ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
         F, C11, C22, C12, internal, jacobian = self._membrane_forms(v, du)
@@ -115,6 +125,78 @@ class MembraneProblem:
         self._finite = True
 
     # --- building the problem ---------------------------------------------------------------
+    def _plies(self, law, yarn_angle_deg) -> None:
+        """One law and one yarn angle per ply (:attr:`laws`, :attr:`yarn_angles_deg`), the ply
+        of every local cell (:attr:`cell_ply`, ghosts included); :attr:`law` the law of every
+        cell when the plies share it (equal parameters), :attr:`yarn_angle_deg` the angle when
+        they share it (else None)."""
+        n_plies = len(getattr(self.blank_mesh, "heights", ())) or 1
+        laws = tuple(law) if isinstance(law, (list, tuple)) else (law,)
+        angles = tuple(float(a) for a in np.atleast_1d(yarn_angle_deg))
+        for name, values in (("law", laws), ("yarn_angle_deg", angles)):
+            if len(values) not in (1, n_plies):
+                raise ValueError(f"{len(values)} values of {name} for {n_plies} plies; expected "
+                                 f"one, or one per ply")
+        self.laws = laws * n_plies if len(laws) == 1 else laws
+        self.yarn_angles_deg = angles * n_plies if len(angles) == 1 else angles
+        index_map = self.mesh.topology.index_map(2)
+        self.cell_ply = (np.asarray(self.blank_mesh.cell_plies(), dtype=np.int32)
+                         if n_plies > 1 else
+                         np.zeros(index_map.size_local + index_map.num_ghosts, dtype=np.int32))
+        self.uniform_law = all(other is self.laws[0] or other.params == self.laws[0].params
+                               for other in self.laws)
+        self.uniform_angle = len(set(self.yarn_angles_deg)) == 1
+        self.yarn_angle_deg = self.yarn_angles_deg[0] if self.uniform_angle else None
+
+    def _point_law(self) -> None:
+        """The law of every local law point (:attr:`point_law`, a PiecewiseLaw: one piece when
+        the plies share the law, else the plies) and :attr:`law`."""
+        from drape.law.piecewise import PiecewiseLaw
+        if self.uniform_law:
+            self.point_law = PiecewiseLaw(self.laws[:1], np.zeros(self.n_cells * self.nq))
+            self.law = self.laws[0]
+        else:
+            self.point_law = PiecewiseLaw(self.laws,
+                                          np.repeat(self.cell_ply[: self.n_cells], self.nq))
+            self.law = self.point_law
+        #: 2 mu Ksh: a number, or one per point when the plies' laws differ
+        self._elastic_shear = self.law.two_mu_ksh
+        self._yarn_stiffness = self.point_law.yarn_stiffness()
+
+    def _per_cell(self, name: str, ply_values):
+        """A DG0 function holding ``ply_values[k]`` on the cells of ply k (ghosts included)."""
+        from dolfinx import fem
+        if not hasattr(self, "_dg0"):
+            self._dg0 = fem.FunctionSpace(self.mesh, ("DG", 0))
+        function = fem.Function(self._dg0, name=name)
+        cells = self._dg0.dofmap.list.array
+        function.x.array[cells] = np.asarray(ply_values, dtype=float)[self.cell_ply]
+        return function
+
+    def _yarn_frame(self):
+        """G1 = (cos theta, sin theta), G2 = (-sin theta, cos theta): constants when the plies
+        share theta, else from DG0 functions of cos theta and sin theta (per ply)."""
+        import ufl
+        if self.uniform_angle:
+            theta = np.radians(self.yarn_angle_deg)
+            cos, sin = np.cos(theta), np.sin(theta)
+        else:
+            theta = np.radians(self.yarn_angles_deg)
+            cos = self._per_cell("cos_yarn_angle", np.cos(theta))
+            sin = self._per_cell("sin_yarn_angle", np.sin(theta))
+        return ufl.as_vector([cos, sin]), ufl.as_vector([-sin, cos])
+
+    def _half_yarn_moduli(self):
+        """mu K1 / 2 and mu K2 / 2 (N/mm): numbers when the plies share the law, else DG0
+        functions (per ply)."""
+        if self.uniform_law:
+            params = self.law.params
+            return params.mu * params.K1 * 0.5, params.mu * params.K2 * 0.5
+        moduli = [(law.params.mu * law.params.K1 * 0.5, law.params.mu * law.params.K2 * 0.5)
+                  for law in self.laws]
+        return (self._per_cell("half_mu_K1", [m[0] for m in moduli]),
+                self._per_cell("half_mu_K2", [m[1] for m in moduli]))
+
     def _quadrature(self, jit: dict) -> np.ndarray:
         """The law's quadrature rule, the local cells and their reference areas (mm^2);
         returns the areas of the local and ghost cells (the bending hinges on the edges a rank
@@ -160,21 +242,24 @@ class MembraneProblem:
         self.tau = fem.Function(self.Q, name="tau")
         self.dtau = fem.Function(self.Q, name="dtau_dC12")
         # the law's committed state, one quadrature function per quantity (LawState.columns)
-        virgin = LawState.virgin(1, self.law.n).columns()
+        virgin = LawState.virgin(1, self.point_law.n).columns()
+        points = self.point_law.virgin().columns()
         self.law_state = {name: fem.Function(self.Q, name=f"law_{name}") for name in virgin}
         for name, function in self.law_state.items():
             function.x.array[:] = virgin[name][0]
+            function.x.array[self.qdofs] = points[name]
         self.tau.x.array[:] = 0.0
-        self.dtau.x.array[:] = self.law.two_mu_ksh   # elastic until the first evaluation
+        # elastic until the first evaluation
+        self.dtau.x.array[:] = self.laws[0].two_mu_ksh
+        self.dtau.x.array[self.qdofs] = self._elastic_shear
 
     def _membrane_forms(self, v, du):
         """The kinematics in the yarn frame and the internal virtual work with its Jacobian
         (module docstring); returns F, C11, C22, C12, the internal work and the Jacobian."""
         import ufl
-        msh, params, u = self.mesh, self.law.params, self.u
-        theta = np.radians(self.yarn_angle_deg)
-        G1 = ufl.as_vector([np.cos(theta), np.sin(theta)])
-        G2 = ufl.as_vector([-np.sin(theta), np.cos(theta)])
+        msh, u = self.mesh, self.u
+        G1, G2 = self._yarn_frame()
+        half_mu_K1, half_mu_K2 = self._half_yarn_moduli()
         I32 = ufl.as_matrix([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
         F = I32 + ufl.grad(u)
         C = F.T * F
@@ -184,8 +269,8 @@ class MembraneProblem:
             return ufl.dot(G1, ufl.sym(F.T * ufl.grad(w)) * G2)
 
         P = ufl.outer(G1, G2) + ufl.outer(G2, G1)
-        S_yarn = (params.mu * params.K1 * 0.5 * (C11 - 1.0) * ufl.outer(G1, G1)
-                  + params.mu * params.K2 * 0.5 * (C22 - 1.0) * ufl.outer(G2, G2))
+        S_yarn = (half_mu_K1 * (C11 - 1.0) * ufl.outer(G1, G1)
+                  + half_mu_K2 * (C22 - 1.0) * ufl.outer(G2, G2))
         S_shear = 0.5 * self.tau * P
         dx_law = ufl.dx(domain=msh, metadata={"quadrature_degree": self.degree})
         virtual = ufl.sym(F.T * ufl.grad(v))
@@ -268,7 +353,7 @@ class MembraneProblem:
         from drape.law.nested_surface import LawState
         q = self.qdofs
         return LawState.from_columns({name: f.x.array[q] for name, f in self.law_state.items()},
-                                     self.law.n)
+                                     self.point_law.n)
 
     def evaluate(self) -> None:
         """Run the law at every local quadrature point for the current u, from the committed
@@ -277,7 +362,7 @@ class MembraneProblem:
         C = self._yarn_C.eval(self.cells).reshape(-1, 3)
         middle = time.perf_counter()
         committed = self.committed_state()
-        response = self.law.update(committed, C[:, 0], C[:, 1], C[:, 2])
+        response = self.point_law.update(committed, C[:, 0], C[:, 1], C[:, 2])
         end = time.perf_counter()
         # owned cells only: assembly visits owned cells, so ghost entries of quadrature
         # functions are never read (and are not kept up to date)
@@ -285,7 +370,7 @@ class MembraneProblem:
         self.dtau.x.array[self.qdofs] = (
             neutral_loading_tangent(response.dtau_dC12, response.active_surface >= 0,
                                     response.trial.gamma_p - committed.gamma_p,
-                                    self.law.two_mu_ksh, self.neutral_loading_band)
+                                    self._elastic_shear, self.neutral_loading_band)
             if self.neutral_loading_band > 0.0 else response.dtau_dC12)
         self.response = response
         self._finite = all_finite(response.tau, response.dtau_dC12, response.trial.gamma_p,
@@ -433,10 +518,10 @@ class MembraneProblem:
         the residual sees it: in the strip cells whose yarn tension is integrated at the centre
         (:attr:`strip_reduced`), their cell's mean (the centre's value for a linear field), not
         the 2x2 points' values, which carry the hourglass shape the centre does not feel."""
-        r, p = self.response, self.law.params
+        r, (mu_K1, mu_K2) = self.response, self._yarn_stiffness
         if r is None or not r.tau.size:
             return np.zeros(0)
-        e1, e2 = r.S11 / (p.mu * p.K1), r.S22 / (p.mu * p.K2)
+        e1, e2 = r.S11 / mu_K1, r.S22 / mu_K2
         if self.strip_reduced:
             strip = self.blank_mesh.strip_cells
             strip = strip[strip < self.n_cells]

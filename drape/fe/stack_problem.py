@@ -16,8 +16,9 @@ Rows and columns of Dirichlet dofs get no contact entries: their rows hold the b
 condition, and (as DOLFINx's lifting does for the form) their columns' effect is dropped from
 the Jacobian, which is exact once the iterate satisfies the conditions.
 
-Ply orientation and material are still those of the whole mesh (MembraneProblem's single
-yarn angle and law): per-ply ones are the next step (docs/plies.md, "Not wired yet").
+Every ply has its own yarn angle and law (MembraneProblem's per-ply ``yarn_angle_deg`` and
+``law``): :func:`create_stack_problem` takes them from the stack's orientations and
+``ply_laws``.
 """
 
 from __future__ import annotations
@@ -31,11 +32,12 @@ from drape.forming.ply_contact import DEFAULT_MARGIN, PlyContact, StackNodes, sp
 
 
 class StackProblem(MembraneProblem):
-    """MembraneProblem on a stack with ply-ply contact (module docstring). ``laws``: a
+    """MembraneProblem on a stack with ply-ply contact (module docstring). ``law`` and
+    ``yarn_angle_deg``: one for every ply or one per ply (as MembraneProblem); ``laws``: a
     :class:`~drape.forming.ply_contact.FrictionLaw` per interface; ``penalty`` ε_N (N/mm³),
     ``smoothing`` g0 (mm) and ``regularisation`` δ (mm) as the tools' contact."""
 
-    def __init__(self, stack_mesh, law, yarn_angle_deg: float, damping: float, laws,
+    def __init__(self, stack_mesh, law, yarn_angle_deg, damping: float, laws,
                  penalty: float, smoothing: float, regularisation: float,
                  margin: float = DEFAULT_MARGIN, **options):
         super().__init__(stack_mesh, law, yarn_angle_deg, damping, **options)
@@ -255,20 +257,26 @@ class StackProblem(MembraneProblem):
         return extended, to_local
 
 def create_stack_problem(comm, stack, mesh_config, contact, law, damping: float,
-                         centred: bool = True, **options) -> StackProblem:
+                         centred: bool = True, ply_laws=None, **options) -> StackProblem:
     """The StackProblem of a :class:`~drape.forming.plies.StackConfig`: its plies meshed with
-    ``mesh_config`` (``[mesh]``), one :class:`FrictionLaw` per interface, and the penalty,
-    smoothing and stick zone of ``contact`` (``[contact]``, a ContactParameters) by the tools'
-    rule: ε_N = c mu max(K1, K2) / h², g0 = 0.05 h (h = mesh.size), so that plies press on
-    each other as the fabric presses on the tools. ``options`` go to MembraneProblem."""
+    ``mesh_config`` (``[mesh]``), each with its orientation and its law (``ply_laws``, one
+    per ply, e.g. of :func:`~drape.forming.plies.ply_materials`; None: ``law`` for every
+    ply), one :class:`FrictionLaw` per interface, and the penalty, smoothing and stick zone of
+    ``contact`` (``[contact]``, a ContactParameters) by the tools' rule with the stiffest
+    ply's yarns: ε_N = c max_k mu K_max,k / h², g0 = 0.05 h (h = mesh.size), so that plies
+    press on each other as the fabric presses on the tools. ``options`` go to
+    MembraneProblem."""
     from drape.fe.stack_mesh import create_stack_mesh
     from drape.forming.ply_contact import FrictionLaw
-    params = law.params
+    laws = [law] * len(stack.plies) if ply_laws is None else list(ply_laws)
+    if len(laws) != len(stack.plies):
+        raise ValueError(f"{len(laws)} ply laws for {len(stack.plies)} plies")
+    stiffest = max(p.mu * max(p.K1, p.K2) for p in (law.params for law in laws))
     h = mesh_config.size
     mesh = create_stack_mesh(comm, [ply.blank() for ply in stack.plies], stack.heights(),
                              [ply.thickness for ply in stack.plies], mesh_config, centred)
-    return StackProblem(mesh, law, stack.plies[0].orientation, damping,
+    return StackProblem(mesh, laws, [ply.orientation for ply in stack.plies], damping,
                         [FrictionLaw.of(interface) for interface in stack.interface_list()],
-                        penalty=contact.penalty_for(params.mu * max(params.K1, params.K2), h),
+                        penalty=contact.penalty_for(stiffest, h),
                         smoothing=contact.smoothing_for(h),
                         regularisation=contact.slip_regularisation, **options)

@@ -152,3 +152,29 @@ def single_ply_stack(blank, thickness: float, material: str = "") -> StackConfig
     ply.validate()
     stack.validate()
     return stack
+
+
+def ply_materials(stack: StackConfig, job_params, job_dir, surfaces: int | None = None) -> list:
+    """The MaterialParameters of every ply, bottom first: its ``material`` file (relative to
+    ``job_dir``, the job file's folder), else the job's (``job_params``). ``surfaces``: the
+    job's ``surfaces`` (inner surfaces kept), applied to the plies' own files as to the job's
+    material. A file several plies name is read once (the plies share its parameters)."""
+    from pathlib import Path
+
+    from drape.law.parameters import load_material
+    read = {}
+    out = []
+    for k, ply in enumerate(stack.plies):
+        if not ply.material:
+            out.append(job_params)
+            continue
+        path = Path(job_dir) / ply.material
+        if path not in read:
+            if not path.is_file():
+                raise InputError("material file not found", key=f"plies[{k}].material",
+                                 value=ply.material,
+                                 expected=f"a TOML file relative to {Path(job_dir)} "
+                                          f"(looked for {path})")
+            read[path] = load_material(path, surfaces, surfaces_key="surfaces")
+        out.append(read[path])
+    return out
