@@ -126,76 +126,21 @@ class MembraneProblem:
 
     # --- building the problem ---------------------------------------------------------------
     def _plies(self, law, yarn_angle_deg) -> None:
-        """One law and one yarn angle per ply (:attr:`laws`, :attr:`yarn_angles_deg`), the ply
-        of every local cell (:attr:`cell_ply`, ghosts included); :attr:`law` the law of every
-        cell when the plies share it (equal parameters), :attr:`yarn_angle_deg` the angle when
-        they share it (else None)."""
-        n_plies = len(getattr(self.blank_mesh, "heights", ())) or 1
-        laws = tuple(law) if isinstance(law, (list, tuple)) else (law,)
-        angles = tuple(float(a) for a in np.atleast_1d(yarn_angle_deg))
-        for name, values in (("law", laws), ("yarn_angle_deg", angles)):
-            if len(values) not in (1, n_plies):
-                raise ValueError(f"{len(values)} values of {name} for {n_plies} plies; expected "
-                                 f"one, or one per ply")
-        self.laws = laws * n_plies if len(laws) == 1 else laws
-        self.yarn_angles_deg = angles * n_plies if len(angles) == 1 else angles
-        index_map = self.mesh.topology.index_map(2)
-        self.cell_ply = (np.asarray(self.blank_mesh.cell_plies(), dtype=np.int32)
-                         if n_plies > 1 else
-                         np.zeros(index_map.size_local + index_map.num_ghosts, dtype=np.int32))
-        self.uniform_law = all(other is self.laws[0] or other.params == self.laws[0].params
-                               for other in self.laws)
-        self.uniform_angle = len(set(self.yarn_angles_deg)) == 1
-        self.yarn_angle_deg = self.yarn_angles_deg[0] if self.uniform_angle else None
+        """The plies' laws and yarn angles (drape/fe/ply_properties.py), with their attributes
+        on the problem: :attr:`laws`, :attr:`yarn_angles_deg`, :attr:`cell_ply`,
+        :attr:`uniform_law`, :attr:`yarn_angle_deg` (None when the plies' angles differ)."""
+        from drape.fe.ply_properties import PlyProperties
+        self.plies = plies = PlyProperties(self.blank_mesh, law, yarn_angle_deg)
+        self.laws, self.yarn_angles_deg, self.cell_ply = (plies.laws, plies.yarn_angles_deg,
+                                                          plies.cell_ply)
+        self.uniform_law, self.yarn_angle_deg = plies.uniform_law, plies.yarn_angle_deg
 
     def _point_law(self) -> None:
-        """The law of every local law point (:attr:`point_law`, a PiecewiseLaw: one piece when
-        the plies share the law, else the plies) and :attr:`law`."""
-        from drape.law.piecewise import PiecewiseLaw
-        if self.uniform_law:
-            self.point_law = PiecewiseLaw(self.laws[:1], np.zeros(self.n_cells * self.nq))
-            self.law = self.laws[0]
-        else:
-            self.point_law = PiecewiseLaw(self.laws,
-                                          np.repeat(self.cell_ply[: self.n_cells], self.nq))
-            self.law = self.point_law
+        """The law of every local law point (:attr:`point_law`) and :attr:`law`."""
+        self.point_law, self.law = self.plies.point_law(self.n_cells, self.nq)
         #: 2 mu Ksh: a number, or one per point when the plies' laws differ
         self._elastic_shear = self.law.two_mu_ksh
         self._yarn_stiffness = self.point_law.yarn_stiffness()
-
-    def _per_cell(self, name: str, ply_values):
-        """A DG0 function holding ``ply_values[k]`` on the cells of ply k (ghosts included)."""
-        from dolfinx import fem
-        if not hasattr(self, "_dg0"):
-            self._dg0 = fem.FunctionSpace(self.mesh, ("DG", 0))
-        function = fem.Function(self._dg0, name=name)
-        cells = self._dg0.dofmap.list.array
-        function.x.array[cells] = np.asarray(ply_values, dtype=float)[self.cell_ply]
-        return function
-
-    def _yarn_frame(self):
-        """G1 = (cos theta, sin theta), G2 = (-sin theta, cos theta): constants when the plies
-        share theta, else from DG0 functions of cos theta and sin theta (per ply)."""
-        import ufl
-        if self.uniform_angle:
-            theta = np.radians(self.yarn_angle_deg)
-            cos, sin = np.cos(theta), np.sin(theta)
-        else:
-            theta = np.radians(self.yarn_angles_deg)
-            cos = self._per_cell("cos_yarn_angle", np.cos(theta))
-            sin = self._per_cell("sin_yarn_angle", np.sin(theta))
-        return ufl.as_vector([cos, sin]), ufl.as_vector([-sin, cos])
-
-    def _half_yarn_moduli(self):
-        """mu K1 / 2 and mu K2 / 2 (N/mm): numbers when the plies share the law, else DG0
-        functions (per ply)."""
-        if self.uniform_law:
-            params = self.law.params
-            return params.mu * params.K1 * 0.5, params.mu * params.K2 * 0.5
-        moduli = [(law.params.mu * law.params.K1 * 0.5, law.params.mu * law.params.K2 * 0.5)
-                  for law in self.laws]
-        return (self._per_cell("half_mu_K1", [m[0] for m in moduli]),
-                self._per_cell("half_mu_K2", [m[1] for m in moduli]))
 
     def _quadrature(self, jit: dict) -> np.ndarray:
         """The law's quadrature rule, the local cells and their reference areas (mm^2);
@@ -258,8 +203,8 @@ class MembraneProblem:
         (module docstring); returns F, C11, C22, C12, the internal work and the Jacobian."""
         import ufl
         msh, u = self.mesh, self.u
-        G1, G2 = self._yarn_frame()
-        half_mu_K1, half_mu_K2 = self._half_yarn_moduli()
+        G1, G2 = self.plies.yarn_frame()
+        half_mu_K1, half_mu_K2 = self.plies.half_yarn_moduli()
         I32 = ufl.as_matrix([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
         F = I32 + ufl.grad(u)
         C = F.T * F
