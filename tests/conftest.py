@@ -138,6 +138,18 @@ def bias_extension_short(tmp_path_factory):
     return get
 
 
+#: the hemisphere's tools scaled down (punch R 30 mm, die fillet 8 mm, so 6 mm elements are
+#: allowed) for checks that need a forming run but not the shipped 2601-cell mesh: with a
+#: 120 mm square blank (SMALL_SQUARE) 400 cells, a seventh of the shipped job's time per step
+#: (tests/test_blanks.py, the resumed forming runs of tests/test_forming.py)
+SMALL_HEMISPHERE = ["tools.hemisphere.punch_radius=30", "tools.hemisphere.die_opening_radius=35",
+                    "tools.hemisphere.die_fillet_radius=8",
+                    "tools.hemisphere.holder_inner_radius=45",
+                    "tools.hemisphere.holder_outer_radius=100", "process.holder_force=100",
+                    "mesh.size=6"]
+SMALL_SQUARE = ["blank.length=120", "blank.width=120"]
+
+
 #: the default hemisphere job made short: the punch 5 mm down on the coarsest mesh its tools
 #: allow (tests/test_forming.py, tests/test_step_tools.py)
 HEMISPHERE_SHORT = ["process.stroke=5", "steps.initial=0.05", "steps.maximum=0.2"]
