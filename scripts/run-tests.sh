@@ -13,6 +13,10 @@ repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$repo"
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 export OMPI_MCA_rmaps_base_oversubscribe=1
+# a rank waiting for the other gives its core up instead of spinning: on the shared 2-core
+# machine a spinning rank took the core the other rank needed (a 2-rank test, load 5: 48-53 s
+# spinning, 30 s yielding)
+export OMPI_MCA_mpi_yield_when_idle=1
 python=.venv/bin/python
 
 echo "== lint (ruff check)"
