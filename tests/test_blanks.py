@@ -3,9 +3,10 @@ keeps the yarns' alignment inside a strip along the outline; a disc and an octag
 pressed to full stroke on a small hemisphere, give a shear field with the square's symmetries
 and no cell-to-cell oscillation; the oscillation measure itself (drape/reports/oscillation.py).
 
-The forming runs use a hemisphere scaled down (punch R 30 mm, die fillet 8 mm, so 6 mm elements
-are allowed: about 430 cells) and one run each feeds several assertions; they are marked
-``two_ranks`` (tests/conftest.py): the suite runs them once, under `mpirun -n 2`.
+The forming runs use a hemisphere scaled down (tests/conftest.py's SMALL_HEMISPHERE: punch R
+30 mm, die fillet 8 mm, so 6 mm elements are allowed: about 430 cells) and one run each feeds
+several assertions; they are marked ``two_ranks`` (tests/conftest.py): the suite runs them
+once, under `mpirun -n 2`.
 """
 
 import json
@@ -15,12 +16,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from conftest import CONFIGS
+from conftest import CONFIGS, SMALL_HEMISPHERE
 
-SMALL = ["tools.hemisphere.punch_radius=30", "tools.hemisphere.die_opening_radius=35",
-         "tools.hemisphere.die_fillet_radius=8", "tools.hemisphere.holder_inner_radius=45",
-         "tools.hemisphere.holder_outer_radius=100", "process.stroke=30",
-         "process.holder_force=100", "mesh.size=6", "output.xdmf=false"]
+SMALL = SMALL_HEMISPHERE + ["process.stroke=30", "output.xdmf=false"]
 #: a regular octagon with sides facing the yarn axes (D4 like the square), circumradius 74 mm
 OCTAGON = [[round(74 * math.cos(math.radians(22.5 + 45 * k)), 6),
             round(74 * math.sin(math.radians(22.5 + 45 * k)), 6)] for k in range(8)]

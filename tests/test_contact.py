@@ -14,6 +14,9 @@ from drape.forming.contact import (SEPARATED, SLIP, STICK, ContactParameters, ga
                            normal_pressure, penetration_report, propose_penalty, traction)
 from drape.errors import InputError
 
+# no MPI in these tests: under mpirun each rank would do the same (tests/conftest.py)
+pytestmark = pytest.mark.serial
+
 RNG = np.random.default_rng(7)
 EPS, MU, DELTA = 2500.0, 0.25, 0.05
 

@@ -19,6 +19,9 @@ from drape.geometry.tools import (DoubleDomeTools, ToolMeshing, analytic_double_
 from drape.forming.surfaces import MeshedSurface, TriangleSurface
 from tool_helpers import chord_bound
 
+# no MPI in these tests: under mpirun each rank would do the same (tests/conftest.py)
+pytestmark = pytest.mark.serial
+
 CFG = DoubleDomeTools(gap=0.5)     # a nonzero gap: every height depends on it
 COARSE = ToolMeshing(chord_tolerance=0.2, max_size=20.0, elements_per_radius=2.0)
 #: largest distance measured between OpenCASCADE's fillet surfaces (approximations) and the

@@ -13,6 +13,9 @@ from drape.job import StepsConfig, key_table, load_job
 from drape.fe.loading import Formula, Loading, VARIABLES
 from drape.fe.solver import SolveResult, next_load, parse_option, run_load_steps
 
+# no MPI in these tests: under mpirun each rank would do the same (tests/conftest.py)
+pytestmark = pytest.mark.serial
+
 
 def write(tmp_path, text, name="job.toml"):
     path = tmp_path / name

@@ -10,6 +10,9 @@ import pytest
 from drape.forming.kinematic import drape_fishnet
 from drape.forming.surfaces import ContactQuery
 
+# no MPI in these tests: under mpirun each rank would do the same (tests/conftest.py)
+pytestmark = pytest.mark.serial
+
 
 class Cylinder:
     """The outside of a horizontal cylinder of radius R about the line y = 0, z = -R (its top

@@ -18,6 +18,9 @@ from drape.law.parameters import MaterialParameters, SurfaceTable, polynomial
 from drape.picture_frame import cyclic_history
 from law_helpers import random_walk, run_history, stack_states, surfaces_of
 
+# no MPI in these tests: under mpirun each rank would do the same (tests/conftest.py)
+pytestmark = pytest.mark.serial
+
 PAPER = MaterialParameters()
 
 

@@ -10,6 +10,9 @@ from drape.errors import InputError
 from drape.law.parameters import (PAPER_A, PAPER_Q, MaterialParameters, load_material,
                                   material_toml)
 
+# no MPI in these tests: under mpirun each rank would do the same (tests/conftest.py)
+pytestmark = pytest.mark.serial
+
 GOOD = CONFIGS / "materials" / "paper_three_surface.toml"
 
 

@@ -11,6 +11,9 @@ from drape.errors import InputError
 from drape.law.parameters import MaterialParameters
 from drape.picture_frame import cyclic_history, drive, parse_cycles, read_history
 
+# no MPI in these tests: under mpirun each rank would do the same (tests/conftest.py)
+pytestmark = pytest.mark.serial
+
 COLUMNS = ["gamma_t_deg", "tau", "gamma_p_deg", "active_surface", "branch_surface",
            "branch_direction", "table_row"]
 

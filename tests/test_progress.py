@@ -6,6 +6,9 @@ import pytest
 
 from drape.io.progress import Progress, _duration
 
+# no MPI in these tests: under mpirun each rank would do the same (tests/conftest.py)
+pytestmark = pytest.mark.serial
+
 
 class FakeClock:
     def __init__(self):

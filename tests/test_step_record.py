@@ -13,6 +13,9 @@ import pytest
 
 from drape.step_record import StepRecord, WorkLedger
 
+# no MPI in these tests: under mpirun each rank would do the same (tests/conftest.py)
+pytestmark = pytest.mark.serial
+
 REPO = Path(__file__).resolve().parent.parent
 
 #: steps.csv of `drape run configs/picture_frame.toml` before the records were typed (header and

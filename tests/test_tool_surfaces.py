@@ -14,6 +14,9 @@ from drape.forming.surfaces import (Arc, AxisymmetricSurface, MeshedSurface, Pro
                          TriangleSurface, closest_point_on_triangles)
 from tool_helpers import brute_force, chord_bound, icosphere, wavy_sheet
 
+# no MPI in these tests: under mpirun each rank would do the same (tests/conftest.py)
+pytestmark = pytest.mark.serial
+
 RNG = np.random.default_rng(20240611)
 
 

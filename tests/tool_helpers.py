@@ -56,16 +56,24 @@ def wavy_sheet(n=24, size=40.0, amplitude=3.0, seed=0) -> TriangleSurface:
     return TriangleSurface("sheet", nodes, tri, normals)
 
 
-def brute_force(surface: TriangleSurface, points):
-    """Distance and closest point over every triangle (no spatial index)."""
+def brute_force(surface: TriangleSurface, points, pairs=200_000):
+    """Distance and closest point over every triangle (no spatial index): every point against
+    every triangle, a block of points (about ``pairs`` point-triangle pairs) at a time."""
     tri = surface.triangles
     a, b, c = (surface.nodes[tri[:, k]] for k in range(3))
+    points = np.asarray(points, dtype=float)
     best = np.full(len(points), np.inf)
     closest = np.zeros((len(points), 3))
-    for i, p in enumerate(points):   # the reference may loop; the code under test may not
-        cp, _, d2 = closest_point_on_triangles(np.broadcast_to(p, a.shape).copy(), a, b, c)
-        j = np.argmin(d2)
-        best[i], closest[i] = d2[j], cp[j]
+    block = max(1, pairs // len(tri))
+    for start in range(0, len(points), block):
+        p = points[start:start + block]
+        n = len(p)
+        cp, _, d2 = closest_point_on_triangles(np.repeat(p, len(tri), axis=0), np.tile(a, (n, 1)),
+                                               np.tile(b, (n, 1)), np.tile(c, (n, 1)))
+        d2, cp = d2.reshape(n, len(tri)), cp.reshape(n, len(tri), 3)
+        j = np.argmin(d2, axis=1)
+        rows = np.arange(n)
+        best[start:start + n], closest[start:start + n] = d2[rows, j], cp[rows, j]
     return np.sqrt(best), closest
 
 
