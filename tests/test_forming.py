@@ -681,7 +681,7 @@ def test_double_domes_keep_the_tools_symmetry_and_stay_outside_them(double_dome_
 
 
 @pytest.mark.slow
-@pytest.mark.full_stroke  # 3.5-6 min each on 2 ranks: only with DRAPE_FULL_STROKE=shipped
+@pytest.mark.full_stroke  # 3.5-6 min each on 2 ranks; DRAPE_FULL_STROKE=0 leaves them out
 @pytest.mark.two_ranks    # run once, on 2 ranks; 1 rank = 2 ranks is test_fe_cli.py's
 @pytest.mark.parametrize("config", ["double_dome.toml", "double_dome_45.toml"])
 def test_double_dome_configs_press_to_full_stroke(shared_tmp, comm, config):
@@ -693,10 +693,9 @@ def test_double_dome_configs_press_to_full_stroke(shared_tmp, comm, config):
     the external work; the shear field has the tools' symmetry (assert_double_dome_symmetry).
     0/90: the largest shear lies where a kinematic drape of the same ply on the die
     (drape.forming.kinematic, a force-free method) shears most, at the corners of the domes
-    (its kinematic percentile > 90). Opt-in (DRAPE_FULL_STROKE=shipped, tests/conftest.py):
-    the shipped tools allow no mesh coarser than 7.85 mm (two elements over the 10 mm fillets),
-    so a cheaper full stroke would be another job; 3 mm down the inertia's share is 0.25 (the
-    blank set moving from rest), too early for this check."""
+    (its kinematic percentile > 90). The shipped tools allow no mesh coarser than 7.85 mm (two
+    elements over the 10 mm fillets), so a cheaper full stroke would be another job; 3 mm down
+    the inertia's share is 0.25 (the blank set moving from rest), too early for this check."""
     from drape.forming.checks import full_stroke
     from drape.geometry.tools import analytic_double_dome_tools
     from drape.job import load_job
