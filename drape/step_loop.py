@@ -75,7 +75,15 @@ def stack_problem(job, comm, law, damping: float, centred: bool, options: dict):
     config = job.config
     stack = config.stack
     if any(ply.material for ply in stack.plies):
-        from drape.forming.plies import ply_materials
+        try:
+            from drape.forming.plies import ply_materials
+        except ImportError:     # a drape without per-ply laws: say so, naming the key
+            from drape.errors import InputError
+            k = next(k for k, ply in enumerate(stack.plies) if ply.material)
+            raise InputError("a ply's own material needs per-ply laws, which this drape "
+                             "lacks", key=f"plies[{k}].material", value=stack.plies[k].material,
+                             expected="no material key in [[plies]] (every ply takes the "
+                                      "job's material)") from None
         materials = ply_materials(stack, job.params, job.path)
         options = dict(options, ply_laws=[NestedSurfaceLaw(params) for params in materials])
     return create_stack_problem(comm, stack, config.mesh, config.contact, law, damping,

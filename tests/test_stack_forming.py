@@ -355,24 +355,35 @@ def test_a_0_90_stack_keeps_the_hemispheres_square_symmetry(two_plies):
 
 @pytest.mark.two_ranks
 def test_one_rank_equals_two_ranks(two_plies, tmp_path):
-    """The stack run on COMM_SELF (rank 0) against the same run on 2 ranks: the same steps,
-    forces and shear fields of each ply (Newton's tolerance)."""
+    """The stack run on COMM_SELF (rank 0) against the same run on 2 ranks: the same steps;
+    punch and holder forces within the holder's control tolerance (1 %), each ply's shear
+    field within 0.5 % of its peak. Not to round-off as a single ply (tests/test_fe_cli.py):
+    the two runs' Newton paths differ (other iteration counts, each converged to rtol 1e-4 of
+    its step's first residual and the holder to 1 %); measured 2e-3 (holder force), 1e-3
+    (largest shear)."""
     from mpi4py import MPI
     comm = MPI.COMM_WORLD
     if comm.size < 2:
         pytest.skip("1 rank against 2: run under mpirun -n 2")
     root, path, _, summary, problem, _ = two_plies
     fields = ply_points(problem)
-    if comm.rank == 0:
+    found = None
+    if comm.rank == 0:          # compared on rank 0, asserted on every rank (no rank left behind)
         _, alone, p1 = form(path, tmp_path / "self", comm=MPI.COMM_SELF)
-        assert [r.t for r in alone.rows] == [r.t for r in summary.rows]
-        for a, b in zip(alone.rows, summary.rows):
-            for key in ("punch_force", "holder_force"):
-                assert a.columns[key] == pytest.approx(b.columns[key], rel=1e-6, abs=1e-8)
-        for k, (xy, gamma) in ply_points(p1).items():
-            assert np.array_equal(xy, fields[k][0])
-            assert np.abs(gamma - fields[k][1]).max() < 1e-6 * np.abs(gamma).max()
-    comm.barrier()
+        forces = max(abs(a.columns[key] - b.columns[key]) / abs(b.columns[key])
+                     for a, b in zip(alone.rows[1:], summary.rows[1:])
+                     for key in ("punch_force", "holder_force"))
+        shear = max(np.abs(gamma - fields[k][1]).max() / np.abs(gamma).max()
+                    for k, (xy, gamma) in ply_points(p1).items())
+        same_points = all(np.array_equal(xy, fields[k][0])
+                          for k, (xy, _) in ply_points(p1).items())
+        found = ([r.t for r in alone.rows] == [r.t for r in summary.rows], same_points,
+                 forces, shear)
+    same_steps, same_points, forces, shear = comm.bcast(found, root=0)
+    print(f"\n1 rank against 2: forces within {forces:.2g}, shear within {shear:.2g} (relative)")
+    assert same_steps and same_points
+    assert forces < 1e-2
+    assert shear < 5e-3
 
 
 @pytest.mark.two_ranks
