@@ -84,7 +84,7 @@ def stack_problem(job, comm, law, damping: float, centred: bool, options: dict):
                              "lacks", key=f"plies[{k}].material", value=stack.plies[k].material,
                              expected="no material key in [[plies]] (every ply takes the "
                                       "job's material)") from None
-        materials = ply_materials(stack, job.params, job.path.parent)
+        materials = ply_materials(stack, job.params, job.path.parent, config.surfaces)
         options = dict(options, ply_laws=[NestedSurfaceLaw(params) for params in materials])
     return create_stack_problem(comm, stack, config.mesh, config.contact, law, damping,
                                 centred=centred, **options)
