@@ -392,7 +392,7 @@ def test_a_resumed_stack_run_equals_the_uninterrupted_one(two_plies):
     memory, accumulated slip and friction work with the tools' state), the run ends where the
     uninterrupted one did, to 1e-8. One rank only: two 2-rank runs of the same stack differ
     already at the first step, before any checkpoint (8e-6 to 1e-2 in the punch force and
-    the largest shear over four runs; docs/plies.md, "Open")."""
+    the largest shear in three pairs of runs; docs/plies.md, "Open")."""
     from mpi4py import MPI
     if MPI.COMM_WORLD.size > 1:
         pytest.skip("2-rank stack runs are not reproducible yet (docs/plies.md, 'Open')")
