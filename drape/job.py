@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 from pathlib import Path
 from typing import Literal
 
@@ -21,6 +22,7 @@ from drape.config import (describe, from_mapping, in_range, non_negative, positi
                           read_toml, setting)
 from drape.forming.contact import ContactParameters
 from drape.errors import InputError
+from drape.forming.plies import InterfaceConfig, PlyConfig, StackConfig, single_ply_stack
 from drape.geometry.tools import ToolsConfig
 from drape.job_tables import (BendingConfig, BiasExtensionConfig, BoundaryConfig,
                                HistoryConfig, MeshConfig, OutputConfig, PictureFrameConfig,
@@ -30,6 +32,9 @@ from drape.job_tables import (BendingConfig, BiasExtensionConfig, BoundaryConfig
 BOUNDARY_NAMES = {"rectangle": ("left", "right", "bottom", "top"), "disc": ("edge",),
                   "polygon": ("edge",)}
 WHOLE_BOUNDARY = "boundary"
+#: the thickness (mm) of a job's only ply when it has no [[plies]] (unused: one ply touches no
+#: other)
+SINGLE_PLY_THICKNESS = 1.0
 #: a mesh.size giving fewer elements than this across the blank is refused (too coarse to
 #: say anything: one element has no interior nodes)
 MIN_ELEMENTS_ACROSS = 3
@@ -94,6 +99,13 @@ def describe_blank(blank) -> str:
             f"{np.ptp(outline[:, 0]):.4g} x {np.ptp(outline[:, 1]):.4g} mm), {yarns}")
 
 
+def describe_stack(stack) -> str:
+    """A stack of plies in a few words: the orientations from the bottom and the bottom ply."""
+    angles = "/".join(f"{ply.orientation:g}" for ply in stack.plies)
+    return (f"{len(stack.plies)} plies at {angles} deg from the bottom, the bottom one a "
+            + describe_blank(stack.plies[0].blank()).split(", yarns")[0])
+
+
 def compose_title(title: str, blank) -> str:
     """The config's title followed by what the blank really is, so that a --set of the blank
     never leaves a title describing another one; a title that already says it is kept."""
@@ -128,8 +140,57 @@ class JobConfig:
     tools: ToolsConfig | None = setting(None, "the rigid tools of a forming job "
                                         "(docs/tools.md)")
     contact: ContactParameters = setting(ContactParameters(), "tool-fabric contact and friction")
+    plies: tuple[PlyConfig, ...] = setting(
+        (), "a stack of plies instead of [blank], from the bottom (on the die) to the top "
+        "(under the holder) ([[plies]], docs/plies.md; a forming job)")
+    interfaces: tuple[InterfaceConfig, ...] = setting(
+        (), "the ply-ply interfaces, the first between plies 0 and 1 ([[interfaces]]; none: "
+        "every pair gets the defaults)")
+
+    @property
+    def stack(self) -> StackConfig:
+        """The plies of the job: its ``[[plies]]``, else ``[blank]`` as a stack of one ply."""
+        if self.plies:
+            return StackConfig(plies=self.plies, interfaces=self.interfaces)
+        # a single ply touches no other ply: its thickness enters nothing
+        return single_ply_stack(self.blank, SINGLE_PLY_THICKNESS, self.material)
+
+    @property
+    def stacked(self) -> bool:
+        """The job forms a stack of two or more plies (a StackProblem, ply-ply contact)."""
+        return len(self.plies) > 1
 
     def validate(self):
+        if self.plies or self.interfaces:
+            self._validate_stack()
+            return
+        self._validate_blank_job()
+
+    def _validate_stack(self):
+        """``[[plies]]``: a forming job without boundaries; each ply checked as a blank is
+        (mesh size, the tools), its errors naming ``plies[k]``."""
+        StackConfig(plies=self.plies, interfaces=self.interfaces).validate()
+        if self.process is None:
+            raise InputError("a stack of plies without a [process] table", key="plies",
+                             expected="a forming job: a [process] table (stroke, holder_force) "
+                                      "with the [[plies]]")
+        if self.boundary:
+            raise InputError("prescribed displacements on a stack of plies", key="boundary",
+                             expected="no [[boundary]] tables with [[plies]] (the tools hold "
+                                      "the stack)")
+        for k, ply in enumerate(self.plies):
+            alone = dataclasses.replace(self, blank=ply.blank(), plies=(), interfaces=())
+            try:
+                alone._validate_blank_job()
+            except InputError as error:
+                key = error.key or ""
+                if key.startswith("blank."):
+                    key = f"plies[{k}]." + key.removeprefix("blank.").replace(
+                        "yarn_angle", "orientation")
+                raise InputError(f"{error.problem} (ply {k})", key=key, value=error.value,
+                                 expected=error.expected) from None
+
+    def _validate_blank_job(self):
         from drape.fe.loading import CONSTANTS, FUNCTIONS, VARIABLES
         reserved = set(VARIABLES) | set(CONSTANTS) | set(FUNCTIONS)
         for name in self.history:
@@ -268,10 +329,20 @@ def load_job(path: str | Path, overrides: list[str] | None = None) -> Job:
 
     path = Path(path)
     data = apply_overrides(read_toml(path), overrides)
+    if "plies" in data and "blank" in data:
+        table = data["blank"] if isinstance(data["blank"], dict) and data["blank"] else None
+        first = next(iter(table)) if table else None    # the key named: its --set, if one
+        shown = {"key": f"blank.{first}", "value": table[first]} if table else {"key": "blank"}
+        error = InputError("both a [blank] table and [[plies]]", source=str(path), **shown,
+                           expected="either [blank] (one ply) or [[plies]] (a stack: each "
+                                    "ply's outline and orientation in its own table), not both")
+        raise _name_override(error, overrides)
     try:
         config = from_mapping(JobConfig, data, source=str(path))
     except InputError as error:
         raise _name_override(error, overrides) from None
+    if config.plies:    # the bottom ply is the job's blank (meshed as such for one ply)
+        config = dataclasses.replace(config, blank=config.plies[0].blank())
     if config.material:
         material_path = (path.parent / config.material)
         if not material_path.is_file():
@@ -291,9 +362,26 @@ def load_job(path: str | Path, overrides: list[str] | None = None) -> Job:
     return Job(config, path, params)
 
 
+#: arrays of tables whose keys are listed on their own page: one line each in key_table()
+TABLES_DOCUMENTED_ELSEWHERE = {
+    "plies": "a stack of plies instead of [blank], bottom first: keys in docs/plies.md",
+    "interfaces": "the ply-ply interfaces, bottom first: keys in docs/plies.md"}
+
+
+def _first_key(table: str) -> str:
+    """The first key of a JobConfig array of tables (``plies`` -> ``thickness``)."""
+    hints = typing.get_type_hints(JobConfig)
+    return dataclasses.fields(typing.get_args(hints[table])[0])[0].name
+
+
 def key_table() -> str:
     """The Markdown table of every job key (for docs/fe-solver.md)."""
     lines = ["| key | type | default | meaning [unit] |", "|---|---|---|---|"]
     for key, kind, default, doc in describe(JobConfig):
+        table = key.partition("[]")[0]
+        if table in TABLES_DOCUMENTED_ELSEWHERE:
+            if key.endswith("[]." + _first_key(table)):
+                lines.append(f"| `[[{table}]]` | tables | | {TABLES_DOCUMENTED_ELSEWHERE[table]} |")
+            continue
         lines.append(f"| `{key}` | {kind} | `{default}` | {doc} |")
     return "\n".join(lines)

@@ -66,6 +66,22 @@ class RunSummary:
     timings: dict       #: the membrane problem's timings (s) and counts (count_*)
 
 
+def stack_problem(job, comm, law, damping: float, centred: bool, options: dict):
+    """The StackProblem of a job with two or more ``[[plies]]`` (drape.fe.stack_problem): each
+    ply's law from its material file (drape.forming.plies.ply_materials) when one sets it,
+    else the job's ``law``; the ply-ply contact's penalty from ``[contact]``."""
+    from drape.fe.stack_problem import create_stack_problem
+    from drape.law.nested_surface import NestedSurfaceLaw
+    config = job.config
+    stack = config.stack
+    if any(ply.material for ply in stack.plies):
+        from drape.forming.plies import ply_materials
+        materials = ply_materials(stack, job.params, job.path.parent, config.surfaces)
+        options = dict(options, ply_laws=[NestedSurfaceLaw(params) for params in materials])
+    return create_stack_problem(comm, stack, config.mesh, config.contact, law, damping,
+                                centred=centred, **options)
+
+
 def bending_rigidity(bending, parts) -> float:
     """The problem's bending rigidity B (N mm): the config's ``[bending]`` rigidity, else the
     first part's default (a forming job's), else 0."""
@@ -98,20 +114,27 @@ class StepLoop:
         self.say = say = log or (lambda *_: None)
         config = self.config = job.config
         self.parts = parts
+        centred = any(part.centres_blank for part in parts)
+        contributions = [c for part in self.parts for c in part.contributions]
+        options = dict(contributions=contributions or None, jit_params=jit_params,
+                       bending_rigidity=bending_rigidity(config.bending, parts),
+                       inertia=any(part.inertial for part in parts),
+                       neutral_loading_band=config.solver.neutral_loading_band)
+        law = NestedSurfaceLaw(job.params)
+        damping = config.regularisation.out_of_plane_damping
         try:
-            blank_mesh = create_blank_mesh(comm, config.blank, config.mesh,
-                                           centred=any(part.centres_blank for part in parts))
+            if config.stacked:
+                self.problem = problem = stack_problem(job, comm, law, damping, centred, options)
+                blank_mesh = problem.blank_mesh
+            else:
+                blank_mesh = create_blank_mesh(comm, config.blank, config.mesh, centred=centred)
         except InputError as error:  # the mesher names the key; the job file is ours to add
             raise error.located(str(job.path)) from None
         say(f"drape run: {job.path}: {blank_mesh.description}, {comm.size} rank(s)")
         self.loading = Loading.from_config(config, source=str(job.path))
-        contributions = [c for part in self.parts for c in part.contributions]
-        self.problem = problem = MembraneProblem(
-            blank_mesh, NestedSurfaceLaw(job.params), config.blank.yarn_angle,
-            config.regularisation.out_of_plane_damping, contributions=contributions or None,
-            jit_params=jit_params, bending_rigidity=bending_rigidity(config.bending, parts),
-            inertia=any(part.inertial for part in parts),
-            neutral_loading_band=config.solver.neutral_loading_band)
+        if not config.stacked:
+            self.problem = problem = MembraneProblem(blank_mesh, law, config.blank.yarn_angle,
+                                                     damping, **options)
         self.motion = PrescribedMotion(problem.V, blank_mesh, self.loading)
         for part in self.parts:
             part.bind(problem, self.motion)
@@ -157,7 +180,16 @@ class StepLoop:
         self.writer = self.disk.write(FIELDS_FILE, lambda: ResultsWriter(
             folder, self.problem, xdmf=output.xdmf, xdmf_every=output.xdmf_every,
             snapshot=output.snapshot, append=self.start is not None,
-            extra_cell_fields=cell_fields or None), root_only=False, fields=True)
+            extra_cell_fields=cell_fields or None, extra_fields=self.stack_fields()),
+            root_only=False, fields=True)
+
+    def stack_fields(self):
+        """A stack's XDMF fields (the ply of each cell, each interface's pressure and slips:
+        drape.forming.stack_reports.StackFields), None for one blank."""
+        if not self.config.stacked:
+            return None
+        from drape.forming.stack_reports import StackFields
+        return StackFields(self.problem)
 
     # --- one step ---------------------------------------------------------------------------
     def record(self, step, t, iterations=0, cutbacks=0, dt=0.0, residual=0.0, seconds=0.0):

@@ -45,10 +45,19 @@ SHORT_OVERRIDES = {
                          *COARSE_DOUBLE_DOME],
     "double_dome_45.toml": ["process.stroke=1.5", "steps.initial=0.3334",
                             "steps.maximum=0.3334", *COARSE_DOUBLE_DOME],
+    # stacks of plies (docs/plies.md), made short and coarse as the single plies
+    "hemisphere_2ply.toml": ["process.stroke=0.5", "steps.initial=0.5", "steps.maximum=0.5",
+                             *COARSE_HEMISPHERE],
+    "double_dome_4ply.toml": ["process.stroke=1.5", "steps.initial=0.3334",
+                              "steps.maximum=0.3334", *COARSE_DOUBLE_DOME],
 }
 #: shipped configs whose short version does not run yet (an expected failure, strict: the test
-#: says when it starts to work); none at present
-KNOWN_FAILING: dict[str, str] = {}
+#: says when it starts to work)
+KNOWN_FAILING: dict[str, str] = {
+    name: "a stack's 1- and 2-rank runs agree to Newton's tolerance, not round-off "
+          "(tests/test_stack_forming.py), and result.npz sorts nodes by (x, y), which the plies "
+          "share (docs/plies.md, 'Not wired yet')"
+    for name in ("hemisphere_2ply.toml", "double_dome_4ply.toml")}
 #: top-level configs/*.toml files that are not `drape run` jobs (name -> why); materials and
 #: tools live in configs/materials and configs/tools
 NOT_JOBS: dict[str, str] = {}

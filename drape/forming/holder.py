@@ -110,12 +110,17 @@ class HolderControl:
     F, and below F_min = 1e-3 F the holder keeps lifting, by 2 (F_min - F') / (eps_N A), the
     slope of the plain penalty's branch: a press's cushion lifts as far as the force needs.
     Without the lift the holder would stop 2 g0 above the die, where the smoothed penalty's
-    pressure falls to zero, and could not rise far enough to bring the force down to F."""
+    pressure falls to zero, and could not rise far enough to bring the force down to F.
+
+    A stack of n plies (``contacts`` = n + 1 penalty contacts in series: holder on the top ply,
+    the n - 1 interfaces, the bottom ply on the die, each at the same pressure) closes n + 1
+    gaps instead of 2, and its top ply's mid-surface lies z_top above the die (``opening`` less
+    z_top: the holder's face starts there)."""
 
     GAIN = 0.5
 
     def __init__(self, force: float, area: float, penalty: float, smoothing: float,
-                 opening: float = 0.0):
+                 opening: float = 0.0, contacts: int = 2):
         if area <= 0.0:
             raise InputError("no blank under the blank holder", key="process.holder_force",
                              value=force, expected="a blank reaching under the holder's flat "
@@ -125,15 +130,18 @@ class HolderControl:
         #: how far the holder travels before its face reaches the die's (STEP tools: the
         #: opening between them where the blank lies in it, :func:`pinch_region`; 0 built-in)
         self.opening = float(opening)
+        #: penalty contacts in series between the holder and the die (2: one ply)
+        self.contacts = float(contacts)
         self.target = force
 
     def lowering(self) -> float:
         """d (mm): how far below the die's top face the holder's face is (negative: above);
         continuous and increasing in the target force F'."""
         least = 1e-3 * self.force
-        d = -2.0 * gap_for_pressure(max(self.target, least) / self.area, self.penalty,
-                                    self.smoothing)
-        return self.opening + d - 2.0 * max(least - self.target, 0.0) / (self.penalty * self.area)
+        d = -self.contacts * gap_for_pressure(max(self.target, least) / self.area, self.penalty,
+                                              self.smoothing)
+        return (self.opening + d
+                - self.contacts * max(least - self.target, 0.0) / (self.penalty * self.area))
 
     def update(self, measured: float) -> None:
         self.target += self.GAIN * (self.force - measured)

@@ -35,7 +35,7 @@ from drape.forming.holder import (HOLDER_CORRECTIONS, HOLDER_LEAST_SLOPE, HOLDER
                                   HOLDER_TOLERANCE, HOLDER_WARNING, Bracket, HolderControl,
                                   holder_region, pinch_region)
 from drape.forming.tool_contact import ToolContact, tool_surfaces
-from drape.job import compose_title, describe_blank
+from drape.job import compose_title, describe_blank, describe_stack
 from drape.job_tables import DEFAULT_FORMING_BENDING
 from drape.reports.oscillation import OSCILLATION_WARNING
 
@@ -72,6 +72,10 @@ class Forming(JobPart):
         config = job.config
         self.config = config
         self.process = config.process
+        #: a stack of plies (None: one blank); its bottom ply is the job's blank, which the
+        #: summary describes (per-ply reports: drape.forming.stack_reports)
+        self.stack = config.stack if config.stacked else None
+        self.blank = config.blank
         #: the problem carries the blank's inertia when the process gives it an areal density
         self.inertial = self.process.areal_density > 0
         tools, dims = tool_set(config)
@@ -121,6 +125,10 @@ class Forming(JobPart):
     def title(self) -> str:
         """The config's title followed by what the blank really is (its shape, size, yarns),
         so that a --set of the blank never leaves a title describing another one."""
+        if self.stack is not None:
+            described = describe_stack(self.stack)
+            title = self.config.title
+            return title if described in title else ", ".join(p for p in (title, described) if p)
         return compose_title(self.config.title, self.config.blank)
 
     # --- wiring -----------------------------------------------------------------------------------
@@ -134,6 +142,7 @@ class Forming(JobPart):
         self.problem = problem
         self.areas = areas.ravel()
         self.n_extra = areas.shape[1]
+        top, z_top, point_plies = self._bind_plies(problem)
         if self._holder_force_controlled:
             reference = np.column_stack([self.tool_contact.reference_points,
                                          np.zeros(self.areas.size)])
@@ -144,10 +153,28 @@ class Forming(JobPart):
                 surfaces = self.tool_contact.surfaces
                 under, opening = pinch_region(surfaces["holder"], surfaces["die"], reference,
                                               self.comm)
+            if point_plies is None:
+                contacts = 2
+            else:       # the holder presses the top ply, z_top above the die's face
+                under = under & (point_plies == top)
+                opening, contacts = opening - z_top, top + 2
             area = self.comm.allreduce(float(self.areas[under].sum()))
             self.holder = HolderControl(self.process.holder_force, area, self.penalty,
-                                        self.smoothing, opening)
+                                        self.smoothing, opening, contacts)
             self.tool_contact.holder_control = self.holder
+
+    def _bind_plies(self, problem):
+        """A stack: the die touches the bottom ply, the punch and the holder the top one (they
+        come down onto it), each ply seen at its height. Returns the top ply, its height (mm)
+        and each contact point's ply (None, 0.0, None for one blank)."""
+        mesh = problem.blank_mesh
+        if getattr(mesh, "n_plies", 1) < 2:
+            return None, 0.0, None
+        top = mesh.n_plies - 1
+        point_plies = np.repeat(mesh.cell_plies()[: problem.n_cells], self.n_extra)
+        touches = {name: 0 if name == "die" else top for name in self.tool_contact.surfaces}
+        self.tool_contact.set_plies(point_plies, mesh.heights, touches)
+        return top, float(mesh.heights[top]), point_plies
 
     def set_load(self, t: float) -> None:
         self.tool_contact.set_load(t)
@@ -170,6 +197,10 @@ class Forming(JobPart):
         t1, t0 = p.t_committed, p.t_previous
         first = t1 == 0.0 and p.damping == 0.0
         p.set_damping(SETTLING_DAMPING if first else p.damping)
+        plies = getattr(p, "ply_contact", None)
+        if plies is not None:   # the slip rate of a rate-dependent ply-ply friction law
+            time = self.process.punch_time
+            plies.set_step_duration(time(self.stroke * t) - time(self.stroke * t1))
         moving = t0 is not None and t1 > t0
         if moving:
             u1, u0 = p.u_committed.x.array, p.u_previous.x.array
@@ -337,9 +368,9 @@ class Forming(JobPart):
         problem, process, last = self.problem, self.process, records[-1]
         forces = [r.columns.get("punch_force", 0.0) for r in records]
         return {
-            "title": self.title, "blank": describe_blank(self.config.blank),
+            "title": self.title, "blank": describe_blank(self.blank),
             "tools": self.kind,
-            "yarn_angle_deg": self.config.blank.yarn_angle,
+            "yarn_angle_deg": self.blank.yarn_angle,
             "stroke_mm": last.columns.get("stroke", 0.0), "configured_stroke_mm": self.stroke,
             "tools_full_stroke_mm": full_stroke(self.config),
             "max_punch_force_N": float(max(forces)),
@@ -364,6 +395,18 @@ class Forming(JobPart):
             "cells": problem.mesh.topology.index_map(problem.mesh.topology.dim).size_global,
         }
 
+    def _stack_summary(self, summary: dict, locking: float):
+        """A stack's blocks of summary.json, ``plies`` and ``interfaces``
+        (drape.forming.stack_reports), and its cells by ply for the per-ply shear maps (rank
+        0; None for one blank). Collective."""
+        if self.stack is None:
+            return None
+        from drape.forming import stack_reports
+        summary["plies"] = stack_reports.ply_summaries(self.problem, self.stack, locking,
+                                                       self.comm)
+        summary["interfaces"] = stack_reports.interface_summaries(self.problem, self.comm)
+        return stack_reports.gather_ply_cells(self.problem)
+
     def finish(self, folder: Path, records: list, seconds: float) -> dict:
         """force_stroke.csv/.png, shear maps, summary.json (collective; rank 0 writes)."""
         from drape.forming import reports
@@ -371,7 +414,7 @@ class Forming(JobPart):
         locking = self.process.locking_angle
         cells = reports.gather_cells(problem)
         summary = reports.shear_summary(problem, locking, self.comm)
-        summary.update(reports.draw_in(problem, self.config.blank, self.comm))
+        summary.update(reports.draw_in(problem, self.blank, self.comm))
         measured = [r.columns["holder_force"] for r in records[1:]
                     if "holder_force" in r.columns]
         if measured:
@@ -381,14 +424,18 @@ class Forming(JobPart):
                       else "position-controlled")
             self.say(f"drape run: holder force measured {min(measured):.5g} to "
                      f"{max(measured):.5g} N over the converged steps ({target})")
+        plies = self._stack_summary(summary, locking)
         if self.comm.rank == 0:
             summary.update(self._run_summary(records, seconds, measured))
-            summary.update(reports.strip_summary(cells, self.config.blank.yarn_angle))
+            summary.update(reports.strip_summary(cells, self.blank.yarn_angle))
             folder = Path(folder)
             rows = [record.row() for record in records]     # as in steps.csv
             reports.write_force_stroke(folder, rows)
             reports.plot_force_stroke(folder, rows, self.title)
             reports.plot_shear_maps(folder, cells, locking, self.title)
+            if plies is not None:
+                from drape.forming.stack_reports import plot_ply_shear_maps
+                plot_ply_shear_maps(folder, plies, locking, self.title)
             with (folder / SUMMARY_FILE).open("w") as stream:
                 json.dump(summary, stream, indent=2)
                 stream.write("\n")

@@ -63,6 +63,18 @@ class ToolContact(PointContribution):
         self.offsets = {name: np.zeros(3) for name in surfaces}
         self.committed_offsets = dict(self.offsets)
         self.last = {}
+        #: a stack: each point's height z_k (mm, (P,)) and, per tool, the points it touches
+        #: (indices); None: one ply at z = 0, every tool touching every point
+        self.heights = None
+        self.touched = None
+
+    def set_plies(self, point_plies: np.ndarray, heights, tool_plies: dict) -> None:
+        """A stack: ``point_plies`` (P,) the ply of each point, ``heights`` the plies' heights
+        z_k (mm), ``tool_plies`` {tool name: the ply it touches}."""
+        point_plies = np.asarray(point_plies)
+        self.heights = np.asarray(heights, dtype=float)[point_plies]
+        self.touched = {name: np.flatnonzero(point_plies == tool_plies[name])
+                        for name in self.surfaces}
 
     def setup(self, reference_points):
         super().setup(reference_points)
@@ -81,6 +93,8 @@ class ToolContact(PointContribution):
             self.offsets[name] = np.array([0.0, 0.0, -down])
 
     def evaluate(self, positions, displacements):
+        if self.touched is not None:
+            return self._evaluate_stack(positions, displacements)
         f = np.zeros_like(positions)
         K = np.zeros(positions.shape + (3,))
         self.last = {}
@@ -100,6 +114,38 @@ class ToolContact(PointContribution):
             K -= response.tangent
             self.last[name] = (query.gap, response)
             self._trial_slip[name] = (slip, query.normal)
+        self._u = displacements
+        return f, K
+
+    def _evaluate_stack(self, positions, displacements):
+        """:meth:`evaluate` on a stack: each tool on the points of its ply, lifted to the ply's
+        height; ``last`` holds every point (those of other plies out of contact)."""
+        from drape.forming.contact import ContactResponse
+        positions = positions + np.column_stack([np.zeros((len(positions), 2)), self.heights])
+        f = np.zeros_like(positions)
+        K = np.zeros(positions.shape + (3,))
+        self.last = {}
+        n = len(positions)
+        for name, surface in self.surfaces.items():
+            mine, offset = self.touched[name], self.offsets[name]
+            query = surface.query(positions[mine], offset, cutoff=self.cutoff)
+            slip = (displacements[mine] - self.committed_u[mine]
+                    - (offset - self.committed_offsets[name]) + self.elastic_slip[name][mine])
+            part = traction(query.gap, query.normal, slip, self.penalty, self.friction,
+                            self.regularisation, touching_is_active=True,
+                            smoothing=self.smoothing)
+            f[mine] += part.traction
+            K[mine] -= part.tangent
+            gap = np.full(n, np.inf)
+            gap[mine] = query.gap
+            response = ContactResponse(np.zeros((n, 3)), np.zeros((n, 3, 3)), np.zeros(n),
+                                       np.zeros(n, dtype=part.state.dtype))
+            for full, values in zip(response, part):
+                full[mine] = values
+            self.last[name] = (gap, response)
+            full_slip, normal = np.zeros((n, 3)), np.zeros((n, 3))
+            full_slip[mine], normal[mine] = slip, query.normal
+            self._trial_slip[name] = (full_slip, normal)
         self._u = displacements
         return f, K
 

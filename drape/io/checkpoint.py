@@ -188,6 +188,10 @@ class Checkpoints:
                     global_values[f"shape.contribution{i}.{key}"] = np.array(value.shape[1:])
                 else:
                     global_values[f"contribution{i}.{key}"] = value
+        plies = getattr(p, "ply_contact", None)
+        if plies is not None:
+            nodes.update(_ply_rows(plies, p.global_nodes[:owned]))
+            global_values["ply.friction_work"] = self.comm.allreduce(plies.friction_work)
         dofs = np.asarray(self.prescribed_dofs, dtype=np.int64)
         prescribed = {"f": _array(self.ledger.f), "g": _array(self.ledger.g)}
         if self.ledger.f is None:        # before the first step: no ledger yet
@@ -215,6 +219,7 @@ class Checkpoints:
         p.t_committed = float(meta["t_committed"])
         p.t_previous = None if meta["t_previous"] is None else float(meta["t_previous"])
         self._restore_points(saved, cells)
+        self._restore_plies(saved, nodes)
         ledger_f, ledger_g = self._prescribed(saved)
         p._evaluated_at = None
         p.evaluate()
@@ -286,6 +291,30 @@ class Checkpoints:
                           if k.startswith(f"global.{prefix}")})
             contribution.load_state(state)
 
+    def _restore_plies(self, saved: dict, nodes: dict) -> None:
+        """A stack's ply-ply contact: friction's memory and the accumulated slip of the slave
+        nodes this rank owns, the friction work (its total on rank 0), and the candidate pairs
+        searched again at the restored displacement, as after the step's commit."""
+        p = self.problem
+        plies = getattr(p, "ply_contact", None)
+        if plies is None:
+            return
+        if "ply.elastic_slip_0" not in nodes and plies.directions:
+            raise InputError("the checkpoint has no ply-ply contact state", source=str(self.path),
+                             expected="a checkpoint of this stack; or --overwrite to start over")
+        owned = p.global_nodes[: self.layout.n_owned_nodes]
+        state = {}
+        for i in range(len(plies.directions)):
+            memory = np.zeros_like(plies.memory[i])
+            memory[owned] = nodes[f"ply.elastic_slip_{i}"][: len(owned)]
+            state[f"elastic_slip_{i}"] = memory
+            plies.accumulated_slip[i][:] = 0.0
+            plies.accumulated_slip[i][owned] = nodes[f"ply.accumulated_slip_{i}"][: len(owned), 0]
+        plies.load_state(state)
+        total = np.asarray(saved["global.ply.friction_work"], dtype=float)
+        plies.friction_work[:] = total if self.comm.rank == 0 else 0.0
+        p.begin_step()
+
     def _prescribed(self, saved: dict):
         """The ledger's prescribed forces and displacements on this rank's prescribed dofs
         (None, None before the first step)."""
@@ -327,6 +356,16 @@ class Checkpoints:
                                       "interrupted run; or --overwrite to start over")
         return meta
 
+
+
+def _ply_rows(plies, owned_nodes) -> dict:
+    """A stack's per-node ply-ply contact state on this rank's owned nodes (global numbers
+    ``owned_nodes``): friction's memory and the accumulated slip, per direction."""
+    rows = {}
+    for i, memory in enumerate(plies.memory):
+        rows[f"ply.elastic_slip_{i}"] = memory[owned_nodes]
+        rows[f"ply.accumulated_slip_{i}"] = plies.accumulated_slip[i][owned_nodes][:, None]
+    return rows
 
 
 def _array(value) -> np.ndarray:

@@ -1,0 +1,431 @@
+"""Stacks of plies in `drape run` (issue 29, docs/plies.md): the job's [[plies]] and
+[[interfaces]], a one-ply stack equal to today's blank, two plies forming together, the
+contact between them, the hemisphere's symmetry, 1 rank against 2, resuming.
+
+The runs are small: the hemisphere tools scaled down (tests/test_blanks.py's SMALL: punch
+R 30 mm, 6 mm mesh, 140 mm square plies, 576 cells each), the punch a few mm down. Forming
+runs in this process are marked ``two_ranks`` (tests/conftest.py).
+"""
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import CONFIGS
+from drape.errors import RunFailed as RunFailedError
+
+#: the small hemisphere (tests/test_blanks.py), the punch 3 mm down in 1 mm steps
+SMALL = ["tools.hemisphere.punch_radius=30", "tools.hemisphere.die_opening_radius=35",
+         "tools.hemisphere.die_fillet_radius=8", "tools.hemisphere.holder_inner_radius=45",
+         "tools.hemisphere.holder_outer_radius=100", "process.holder_force=100",
+         "mesh.size=6", "output.xdmf=false", "process.stroke=3", "steps.initial=0.3334",
+         "steps.maximum=0.3334"]
+SIDE = 140.0
+THICKNESS = 0.3
+
+
+def ply(orientation=0.0, thickness=THICKNESS, side=SIDE) -> str:
+    return (f"[[plies]]\norientation = {orientation}\nthickness = {thickness}\n"
+            f"length = {side}\nwidth = {side}\n")
+
+
+def stack_job(folder, plies: list[str], interfaces: list[str] = (), name="stack.toml"):
+    """A job file in ``folder``: configs/hemisphere.toml with [[plies]] for its [blank]."""
+    text = (CONFIGS / "hemisphere.toml").read_text()
+    head, _, rest = text.partition("[blank]")
+    rest = rest[rest.index("[mesh]"):]
+    head = head.replace('material = "', f'material = "{CONFIGS}/')
+    body = "".join(plies) + "".join(f"[[interfaces]]\n{i}\n" for i in interfaces)
+    path = folder / name
+    path.write_text(head + body + "\n" + rest)
+    return path
+
+
+def blank_job(folder, overrides=()):
+    """configs/hemisphere.toml's job as a SIDE square blank."""
+    return [f"blank.length={SIDE}", f"blank.width={SIDE}", *overrides]
+
+
+def form(config, folder, overrides=(), comm=None, **hooks):
+    """Run a job (path) with SMALL and ``overrides``; (job, RunSummary, the problem)."""
+    from mpi4py import MPI
+
+    from drape.job import load_job
+    from drape.run import run_job
+    comm = comm or MPI.COMM_WORLD
+    job = load_job(config, overrides=SMALL + list(overrides))
+    parts = {}
+    summary = run_job(job, comm, output=str(folder),
+                      on_start=lambda run: parts.setdefault("problem", run.problem), **hooks)
+    comm.barrier()
+    return job, summary, parts["problem"]
+
+
+def ply_points(problem):
+    """Per ply, its law points' (x, y) and shear angle gamma_t (deg), gathered on every rank
+    and sorted by coordinates: {ply: (xy (P, 2), gamma (P,))}."""
+    mesh = problem.blank_mesh
+    n = problem.n_cells
+    per_cell = problem.point_coordinates.shape[0] // n
+    plies = (np.repeat(mesh.cell_plies()[:n], per_cell) if hasattr(mesh, "cell_plies")
+             else np.zeros(n * per_cell, dtype=int))
+    local = (plies, problem.point_coordinates, problem.response.gamma_t_deg)
+    gathered = problem.comm.allgather(local)
+    plies, xy, gamma = (np.concatenate(part) for part in zip(*gathered))
+    out = {}
+    for k in np.unique(plies):
+        mine = plies == k
+        key = np.round(xy[mine] / SIDE, 9)
+        order = np.lexsort((key[:, 1], key[:, 0]))
+        out[int(k)] = (xy[mine][order], gamma[mine][order])
+    return out
+
+
+def shared(tmp_path):
+    from mpi4py import MPI
+    return MPI.COMM_WORLD.bcast(tmp_path, root=0)
+
+
+# --- the job file ---------------------------------------------------------------------------
+
+def test_a_job_without_plies_is_a_stack_of_its_blank(tmp_path):
+    from drape.job import load_job
+    job = load_job(CONFIGS / "hemisphere_45.toml")
+    stack = job.config.stack
+    assert len(stack.plies) == 1 and not job.config.stacked
+    assert stack.plies[0].blank() == job.config.blank
+    path = stack_job(tmp_path, [ply(45.0, side=200.0)])
+    one = load_job(path)
+    assert one.config.blank == job.config.blank and not one.config.stacked
+
+
+def test_the_shipped_stacks_load_with_their_heights():
+    from drape.job import load_job
+    job = load_job(CONFIGS / "hemisphere_2ply.toml")
+    assert job.config.stacked
+    assert [p.orientation for p in job.config.stack.plies] == [45.0, 0.0]
+    assert job.config.stack.heights() == pytest.approx((0.0, 0.3))
+    job = load_job(CONFIGS / "double_dome_4ply.toml")
+    assert [p.orientation for p in job.config.stack.plies] == [0.0, 45.0, 45.0, 0.0]
+    assert job.config.stack.heights() == pytest.approx((0.0, 0.3, 0.6, 0.9))
+    assert len(job.config.stack.interface_list()) == 3
+
+
+BAD_STACKS = {
+    # (plies, interfaces, extra text, overrides): fragments the message must hold
+    "blank and plies": ([ply(), ply()], [], "[blank]\nlength = 100.0\n", [],
+                        ["key 'blank.length' = 100.0", "either [blank]", "not both"]),
+    "blank set": ([ply(), ply()], [], "", ["blank.length=120"],
+                  ["key 'blank.length' = 120", "--set blank.length=120"]),
+    "thickness missing": (["[[plies]]\norientation = 0\n", ply()], [], "", [],
+                          ["key 'plies[0].thickness'", "required key is missing"]),
+    "orientation": ([ply(), ply(120.0)], [], "", [], ["key 'plies[1].orientation'", "120"]),
+    "interfaces": ([ply(), ply(), ply()], ["friction = 0.1"], "", [],
+                   ["key 'interfaces'", "expected 2 [[interfaces]] tables"]),
+    "friction": ([ply(), ply()], ["friction = -0.1"], "", [],
+                 ["key 'interfaces[0].friction'", "a number >= 0"]),
+    "off the die": ([ply(), ply(side=60.0)], [], "", [],
+                    ["key 'plies[1].length'", "does not cover the die opening"]),
+    "unknown key": (["[[plies]]\nthickness = 0.3\nangle = 45\n", ply()], [], "", [],
+                    ["key 'plies[0].angle'", "unknown key"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_STACKS))
+def test_bad_stacks_are_refused_naming_the_key(tmp_path, case):
+    """As tests/test_bad_inputs.py: one message naming the file, the key, the value and what
+    was expected (here through load_job, which `drape run` calls first)."""
+    from drape.errors import InputError
+    from drape.job import load_job
+    plies, interfaces, extra, overrides, fragments = BAD_STACKS[case]
+    path = stack_job(tmp_path, plies, interfaces)
+    path.write_text(path.read_text() + extra)
+    with pytest.raises(InputError) as raised:
+        load_job(path, overrides=SMALL + overrides)
+    message = str(raised.value)
+    assert str(path) in message
+    missing = [f for f in fragments if f not in message]
+    assert not missing, f"{missing} not in: {message}"
+
+
+def test_a_stack_without_a_process_is_refused(tmp_path):
+    from drape.errors import InputError
+    from drape.job import load_job
+    path = tmp_path / "flat.toml"
+    path.write_text(ply() + ply() + '[[boundary]]\non = "left"\nux = "0"\n')
+    with pytest.raises(InputError, match="key 'plies'.*without a \\[process\\]"):
+        load_job(path)
+
+
+def test_holder_control_of_a_stack_closes_every_gap_in_series():
+    """n plies under the holder: n + 1 penalty contacts in series at the same pressure, and
+    the top ply's mid-surface z_top above the die: the holder stands (n + 1) g(F / A) - z_top
+    lower than the die's face (g the penalty's inverse, drape.forming.contact)."""
+    from drape.forming.contact import gap_for_pressure
+    from drape.forming.holder import HolderControl
+    force, area, penalty, smoothing = 100.0, 5000.0, 6.0, 0.3
+    one = HolderControl(force, area, penalty, smoothing)
+    three = HolderControl(force, area, penalty, smoothing, opening=-0.6, contacts=4)
+    g = gap_for_pressure(force / area, penalty, smoothing)
+    assert one.lowering() == pytest.approx(-2 * g, rel=1e-14)
+    assert three.lowering() == pytest.approx(-4 * g - 0.6, rel=1e-14)
+    three.target = one.target = -force      # lifting beyond F_min = 1e-3 F: the same slope
+    lift = 2 * (1e-3 * force + force) / (penalty * area)
+    g_min = gap_for_pressure(1e-3 * force / area, penalty, smoothing)
+    assert one.lowering() + 2 * g_min == pytest.approx(-lift, rel=1e-12)
+    assert three.lowering() + 4 * g_min + 0.6 == pytest.approx(-2 * lift, rel=1e-12)
+
+
+def test_each_tool_touches_its_ply_at_its_height():
+    """ToolContact on a stack: a flat die (z = 0) and a flat holder face pressing points of
+    two plies at heights 0 and 0.3 mm: the die pushes only the bottom ply's points, at its
+    height; the holder only the top ply's, seen 0.3 mm higher."""
+    from drape.forming.tool_contact import ToolContact
+    from drape.forming.tool_query import ContactQuery
+
+    class Plane:
+        def __init__(self, z, up):
+            self.z, self.up = z, up
+
+        def query(self, points, offset=None, cutoff=None):
+            z = self.z + (0.0 if offset is None else offset[2])
+            gap = (points[:, 2] - z) * self.up
+            normal = np.tile([0.0, 0.0, self.up], (len(points), 1))
+            return ContactQuery(gap, normal, points - gap[:, None] * normal)
+
+    contact = ToolContact({"die": Plane(0.0, 1.0), "holder": Plane(0.0, -1.0)}, set(), 0.0,
+                          penalty=10.0, friction=0.0, regularisation=0.01, cutoff=10.0)
+    xy = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0], [1.0, 0.0]])
+    contact.setup(xy)
+    contact.set_plies(np.array([0, 0, 1, 1]), (0.0, 0.3), {"die": 0, "holder": 1})
+    contact.offsets["holder"] = np.array([0.0, 0.0, 0.27])      # 0.01 into the top ply
+    positions = np.column_stack([xy, np.full(4, -0.02)])             # 0.02 into the die
+    f, _ = contact.evaluate(positions, positions * [0, 0, 1])
+    assert f[:2, 2] == pytest.approx([0.2, 0.2])     # the die: 10 N/mm^3 x 0.02 mm, up
+    # the top ply at z = 0.3 - 0.02: 0.01 below the holder's face, which pushes it down
+    assert f[2:, 2] == pytest.approx([-0.1, -0.1])
+    gap, response = contact.last["die"]
+    assert np.isinf(gap[2:]).all() and (response.pressure[2:] == 0).all()
+
+
+# --- forming runs -------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def one_ply_runs(tmp_path_factory):
+    """The small hemisphere as a [blank] job and as a one-ply [[plies]] job."""
+    from mpi4py import MPI
+    root = MPI.COMM_WORLD.bcast(tmp_path_factory.mktemp("one_ply"), root=0)
+    plain = form(CONFIGS / "hemisphere.toml", root / "blank", blank_job(root))
+    path = stack_job(root, [ply(0.0)]) if MPI.COMM_WORLD.rank == 0 else root / "stack.toml"
+    MPI.COMM_WORLD.barrier()
+    stacked = form(path, root / "plies")
+    return root, plain, stacked
+
+
+@pytest.mark.two_ranks
+def test_a_one_ply_stack_is_todays_job_bit_for_bit(one_ply_runs):
+    """steps.csv (but its seconds), summary.json (but the wall time) and result.npz equal."""
+    from mpi4py import MPI
+    root, _, _ = one_ply_runs
+    if MPI.COMM_WORLD.rank != 0:
+        return
+    a, b = root / "blank", root / "plies"
+
+    def rows(folder):
+        lines = [line.split(",") for line in (folder / "steps.csv").read_text().splitlines()]
+        seconds = lines[0].index("seconds")
+        return [line[:seconds] + line[seconds + 1:] for line in lines]
+
+    assert rows(a) == rows(b) and len(rows(a)) >= 5     # the header, step 0 and 3+ steps
+    summaries = [json.loads((f / "summary.json").read_text()) for f in (a, b)]
+    for s in summaries:
+        s.pop("wall_time_s")
+    assert summaries[0] == summaries[1]
+    with np.load(a / "result.npz") as one, np.load(b / "result.npz") as two:
+        assert one.files == two.files
+        for name in one.files:
+            assert np.array_equal(one[name], two[name]), name
+
+
+def frictionless(root):
+    """Two identical 0/90 plies with a frictionless interface under the holder's force F, and
+    one such ply alone under F / 2."""
+    from mpi4py import MPI
+    path = root / "stack.toml"
+    if MPI.COMM_WORLD.rank == 0:
+        stack_job(root, [ply(), ply()], ["friction = 0.0"])
+    MPI.COMM_WORLD.barrier()
+    short = ["process.stroke=1.2", "steps.minimum=0.02"]     # a stalled run stops soon
+    single = form(CONFIGS / "hemisphere.toml", root / "one",
+                  blank_job(root, ["process.holder_force=50", *short]))
+    double = form(path, root / "two", short)
+    return single, double
+
+
+@pytest.mark.two_ranks
+@pytest.mark.xfail(strict=True, raises=RunFailedError,
+                   reason="Newton stalls on the frictionless interface: the steps shrink below "
+                          "steps.minimum at 0.6 mm (1.2 mm stroke in 0.4 mm steps) and 1.4 mm "
+                          "(3 mm in 1 mm steps), where the same stack with mu = 0.2 forms")
+def test_two_plies_on_a_frictionless_interface_form_like_one_ply_each(tmp_path):
+    """Two identical plies that slide freely on each other: each is held by the friction of
+    one tool face (the top ply by the holder's, mu F; the bottom one by the die's, mu F), as
+    a ply alone under half the holder's force is by both (mu F/2 + mu F/2); the punch presses
+    the top ply and the top ply the bottom one with normal forces only. So each ply's shear
+    field is the lone ply's, up to the stack's thickness (the bottom ply wraps a punch 0.3 mm
+    larger: 1 % of R 30 mm), the penalty's compliance and which ply the fillets' friction
+    acts on. Bound: 5 % of the peak shear; the two plies differ from each other by less."""
+    (_, one, p1), (_, two, p2) = frictionless(shared(tmp_path))
+    alone = ply_points(p1)[0]
+    plies = ply_points(p2)
+    top = np.abs(alone[1]).max()
+    assert top > 0.05
+    for k in (0, 1):
+        assert np.abs(plies[k][0] - alone[0]).max() < 1e-9
+        assert np.abs(plies[k][1] - alone[1]).max() < 0.05 * top, k
+    print(f"\nfrictionless interface: each ply against the lone ply within "
+          f"{max(np.abs(plies[k][1] - alone[1]).max() for k in (0, 1)) / top:.3g} of the peak "
+          f"{top:.3g} deg")
+
+
+@pytest.fixture(scope="module")
+def two_plies(tmp_path_factory):
+    """Two 0/90 plies ([0/90, 0/90]) with friction 0.2 everywhere: (job, summary, problem,
+    per-step largest ply penetration)."""
+    from mpi4py import MPI
+    root = MPI.COMM_WORLD.bcast(tmp_path_factory.mktemp("two_plies"), root=0)
+    path = root / "stack.toml"
+    if MPI.COMM_WORLD.rank == 0:
+        stack_job(root, [ply(), ply()])
+    MPI.COMM_WORLD.barrier()
+    penetration = []
+
+    def measure(record, problem):
+        report = problem.ply_contact.report()[0]
+        penetration.append(problem.comm.allreduce(report["max_penetration"], op=MPI.MAX))
+
+    job, summary, problem = form(path, root / "run", ["output.checkpoint_every=1"],
+                                 on_step=measure)
+    return root, path, job, summary, problem, penetration
+
+
+@pytest.mark.two_ranks
+def test_plies_do_not_interpenetrate(two_plies):
+    """The interface's largest penetration at every step stays below 1 % of h, as the tools'
+    (the same penalty: eps = c mu max(K1, K2) / h^2); and at the last step every pair's gap is
+    where the smoothed penalty puts it for its pressure (drape.forming.contact's closed-form
+    inverse): the most pressed pair at gap_for_pressure(p_max), none closer."""
+    *_, job, summary, problem, penetration = two_plies
+    from mpi4py import MPI
+
+    from drape.forming.contact import gap_for_pressure
+    h = job.config.mesh.size
+    assert len(penetration) == len(summary.rows) - 1
+    assert max(penetration) < 0.01 * h
+    contact, comm = problem.ply_contact, problem.comm
+    pressure, gap = contact.last("pressure"), contact.last("gap")
+    p_max = comm.allreduce(float(pressure.max(initial=0.0)), op=MPI.MAX)
+    g_min = comm.allreduce(float(gap[pressure > 0].min(initial=np.inf)), op=MPI.MIN)
+    assert p_max > 1e-4         # N/mm^2: the holder's 100 N over the flange, and the punch
+    assert g_min == pytest.approx(gap_for_pressure(p_max, contact.penalty, contact.smoothing),
+                                  abs=1e-9)
+    assert -g_min < 0.01 * h
+
+
+@pytest.mark.two_ranks
+def test_a_0_90_stack_keeps_the_hemispheres_square_symmetry(two_plies):
+    """Each ply of a [0/90, 0/90] stack: mirrored in the diagonal (x <-> y swaps warp and
+    weft, gamma unchanged) and in a yarn axis (gamma -> -gamma as far as the law is odd: 5 %,
+    as tests/test_forming.py). The diagonal holds to 2 % of the peak, not to Newton's
+    tolerance as for one ply: the ply-ply contact's master surface splits each quadrilateral
+    along the diagonal its DOLFINx vertex order picks, which the mirror does not map onto
+    itself (measured: 0.8 % at 3 mm)."""
+    *_, problem, _ = two_plies
+    for k, (xy, gamma) in ply_points(problem).items():
+        top = np.abs(gamma).max()
+        assert top > 0.05
+        order = np.lexsort((np.round(xy[:, 0], 6), np.round(xy[:, 1], 6)))
+        assert np.array_equal(np.round(xy[order][:, ::-1], 6), np.round(xy, 6))
+        assert np.abs(gamma[order] - gamma).max() < 0.02 * top, k       # (y, x) against (x, y)
+        flipped = np.lexsort((np.round(xy[:, 1], 6), np.round(-xy[:, 0], 6)))
+        assert np.array_equal(np.round(xy[flipped] * [-1, 1], 6), np.round(xy, 6))
+        assert np.abs(gamma[flipped] + gamma).max() < 0.05 * top, k     # (-x, y) against (x, y)
+
+
+@pytest.mark.two_ranks
+def test_one_rank_equals_two_ranks(two_plies, tmp_path):
+    """The stack run on COMM_SELF (rank 0) against the same run on 2 ranks: the same steps;
+    punch and holder forces within the holder's control tolerance (1 %), each ply's shear
+    field within 2 % of its peak. Not to round-off as a single ply (tests/test_fe_cli.py):
+    the two runs' Newton paths differ (other iteration counts, each converged to rtol 1e-4 of
+    its step's first residual and the holder to 1 %); measured 2e-3 (holder force), 1.0e-2
+    (shear, the largest difference of a point)."""
+    from mpi4py import MPI
+    comm = MPI.COMM_WORLD
+    if comm.size < 2:
+        pytest.skip("1 rank against 2: run under mpirun -n 2")
+    root, path, _, summary, problem, _ = two_plies
+    fields = ply_points(problem)
+    found = None
+    if comm.rank == 0:          # compared on rank 0, asserted on every rank (no rank left behind)
+        _, alone, p1 = form(path, tmp_path / "self", comm=MPI.COMM_SELF)
+        forces = max(abs(a.columns[key] - b.columns[key]) / abs(b.columns[key])
+                     for a, b in zip(alone.rows[1:], summary.rows[1:])
+                     for key in ("punch_force", "holder_force"))
+        shear = max(np.abs(gamma - fields[k][1]).max() / np.abs(gamma).max()
+                    for k, (xy, gamma) in ply_points(p1).items())
+        same_points = all(np.array_equal(xy, fields[k][0])
+                          for k, (xy, _) in ply_points(p1).items())
+        found = ([r.t for r in alone.rows] == [r.t for r in summary.rows], same_points,
+                 forces, shear)
+    same_steps, same_points, forces, shear = comm.bcast(found, root=0)
+    print(f"\n1 rank against 2: forces within {forces:.2g}, shear within {shear:.2g} (relative)")
+    assert same_steps and same_points
+    assert forces < 1e-2
+    assert shear < 2e-2
+
+
+@pytest.mark.two_ranks
+def test_a_resumed_stack_run_equals_the_uninterrupted_one(two_plies):
+    """Stopped after step 2 and resumed from its checkpoint (the ply-ply contact's friction
+    memory, accumulated slip and friction work with the tools' state), the run ends where the
+    uninterrupted one did, to 1e-8. One rank only: two 2-rank runs of the same stack differ
+    already at the first step, before any checkpoint (8e-6 to 1e-2 in the punch force and
+    the largest shear in three pairs of runs; docs/plies.md, "Open")."""
+    from mpi4py import MPI
+    if MPI.COMM_WORLD.size > 1:
+        pytest.skip("2-rank stack runs are not reproducible yet (docs/plies.md, 'Open')")
+    from mpi4py import MPI
+
+    from drape.job import load_job
+    from drape.run import run_job
+    comm = MPI.COMM_WORLD
+    root, path, job, full, problem, _ = two_plies
+    folder = root / "stopped"
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_2(record, _):
+        if record.step == 2:
+            raise Stop
+
+    job = load_job(path, overrides=SMALL + ["output.checkpoint_every=1"])
+    with pytest.raises(Stop):
+        run_job(job, comm, output=str(folder), on_step=stop_after_2)
+    parts = {}
+    resumed = run_job(job, comm, output=str(folder), resume=True,
+                      on_start=lambda run: parts.setdefault("problem", run.problem))
+    bound = 1e-8
+    assert [r.t for r in resumed.rows] == [r.t for r in full.rows]
+    for a, b in zip(resumed.rows, full.rows):
+        for key in ("punch_force", "holder_force", "max_shear_angle_deg"):
+            assert a.row()[key] == pytest.approx(b.row()[key], rel=bound, abs=1e-10), (a.step,
+                                                                                       key)
+    again, before = parts["problem"].ply_contact, problem.ply_contact
+    for i in range(len(before.memory)):     # mm; the slips are of 0.01-0.1 mm
+        assert np.abs(again.memory[i] - before.memory[i]).max() < 0.1 * bound
+        assert np.abs(again.accumulated_slip[i] - before.accumulated_slip[i]).max() < bound
+    work = [comm.allreduce(float(c.friction_work.sum())) for c in (again, before)]
+    assert work[0] == pytest.approx(work[1], rel=10 * bound, abs=1e-12)
