@@ -56,8 +56,14 @@ SHORT_OVERRIDES = {
 KNOWN_FAILING: dict[str, str] = {
     name: "a stack's 1- and 2-rank runs agree to Newton's tolerance, not round-off "
           "(tests/test_stack_forming.py), and result.npz sorts nodes by (x, y), which the plies "
-          "share (docs/plies.md, 'Not wired yet')"
+          "share (docs/plies-forming.md, 'What is left')"
     for name in ("hemisphere_2ply.toml", "double_dome_4ply.toml")}
+#: known failing configs whose failing run is too long to repeat in every suite (name -> why):
+#: skipped; the cheaper stack above says when stacks start to pass
+SKIPPED_WHILE_FAILING: dict[str, str] = {
+    "double_dome_4ply.toml": "a known failure (KNOWN_FAILING) whose short run takes 283 s on 1 "
+                             "and 2 ranks; hemisphere_2ply.toml's strict xfail (29 s) says "
+                             "when stacks pass"}
 #: top-level configs/*.toml files that are not `drape run` jobs (name -> why); materials and
 #: tools live in configs/materials and configs/tools
 NOT_JOBS: dict[str, str] = {}
@@ -84,9 +90,17 @@ def test_every_shipped_job_has_a_short_version():
                          "(or NOT_JOBS) in tests/test_fe_cli.py")
 
 
-@pytest.mark.parametrize("config", [
-    pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=KNOWN_FAILING[name]))
-    if name in KNOWN_FAILING else name for name in shipped_jobs()])
+def job_param(name: str):
+    """A shipped job as the 1-vs-2-rank test's parameter: plain, a strict xfail if it is known
+    to fail, skipped if its failing run is also too long (SKIPPED_WHILE_FAILING)."""
+    if name in SKIPPED_WHILE_FAILING:
+        return pytest.param(name, marks=pytest.mark.skip(reason=SKIPPED_WHILE_FAILING[name]))
+    if name in KNOWN_FAILING:
+        return pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=KNOWN_FAILING[name]))
+    return name
+
+
+@pytest.mark.parametrize("config", [job_param(name) for name in shipped_jobs()])
 def test_one_and_two_ranks_give_the_same_results(tmp_path, config):
     assert config in SHORT_OVERRIDES, f"no short version of configs/{config} in SHORT_OVERRIDES"
     short = [arg for text in SHORT_OVERRIDES[config] for arg in ("--set", text)]
