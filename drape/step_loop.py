@@ -66,20 +66,14 @@ class RunSummary:
     timings: dict       #: the membrane problem's timings (s) and counts (count_*)
 
 
-def stack_problem(job, comm, law, damping: float, centred: bool, options: dict):
-    """The StackProblem of a job with two or more ``[[plies]]`` (drape.fe.stack_problem): each
-    ply's law from its material file (drape.forming.plies.ply_materials) when one sets it,
-    else the job's ``law``; the ply-ply contact's penalty from ``[contact]``."""
-    from drape.fe.stack_problem import create_stack_problem
-    from drape.law.nested_surface import NestedSurfaceLaw
-    config = job.config
-    stack = config.stack
-    if any(ply.material for ply in stack.plies):
-        from drape.forming.plies import ply_materials
-        materials = ply_materials(stack, job.params, job.path.parent, config.surfaces)
-        options = dict(options, ply_laws=[NestedSurfaceLaw(params) for params in materials])
-    return create_stack_problem(comm, stack, config.mesh, config.contact, law, damping,
-                                centred=centred, **options)
+def part_problem(parts, job, comm, law, damping: float, centred: bool, options: dict):
+    """The first problem a part builds for its job (JobPart.create_problem: e.g. a stack of
+    plies' StackProblem), None when none does (the loop's MembraneProblem on the blank)."""
+    for part in parts:
+        problem = part.create_problem(job, comm, law, damping, centred, options)
+        if problem is not None:
+            return problem
+    return None
 
 
 def bending_rigidity(bending, parts) -> float:
@@ -123,8 +117,9 @@ class StepLoop:
         law = NestedSurfaceLaw(job.params)
         damping = config.regularisation.out_of_plane_damping
         try:
-            if config.stacked:
-                self.problem = problem = stack_problem(job, comm, law, damping, centred, options)
+            self.problem = problem = part_problem(parts, job, comm, law, damping, centred,
+                                                  options)
+            if problem is not None:
                 blank_mesh = problem.blank_mesh
             else:
                 blank_mesh = create_blank_mesh(comm, config.blank, config.mesh, centred=centred)
@@ -132,7 +127,7 @@ class StepLoop:
             raise error.located(str(job.path)) from None
         say(f"drape run: {job.path}: {blank_mesh.description}, {comm.size} rank(s)")
         self.loading = Loading.from_config(config, source=str(job.path))
-        if not config.stacked:
+        if problem is None:
             self.problem = problem = MembraneProblem(blank_mesh, law, config.blank.yarn_angle,
                                                      damping, **options)
         self.motion = PrescribedMotion(problem.V, blank_mesh, self.loading)
@@ -180,16 +175,14 @@ class StepLoop:
         self.writer = self.disk.write(FIELDS_FILE, lambda: ResultsWriter(
             folder, self.problem, xdmf=output.xdmf, xdmf_every=output.xdmf_every,
             snapshot=output.snapshot, append=self.start is not None,
-            extra_cell_fields=cell_fields or None, extra_fields=self.stack_fields()),
+            extra_cell_fields=cell_fields or None, extra_fields=self.output_fields()),
             root_only=False, fields=True)
 
-    def stack_fields(self):
-        """A stack's XDMF fields (the ply of each cell, each interface's pressure and slips:
-        drape.forming.stack_reports.StackFields), None for one blank."""
-        if not self.config.stacked:
-            return None
-        from drape.forming.stack_reports import StackFields
-        return StackFields(self.problem)
+    def output_fields(self):
+        """The parts' own XDMF fields (JobPart.output_fields: e.g. a stack's plies and
+        interfaces), None when no part has any."""
+        return next((fields for fields in (part.output_fields(self.problem)
+                                           for part in self.parts) if fields is not None), None)
 
     # --- one step ---------------------------------------------------------------------------
     def record(self, step, t, iterations=0, cutbacks=0, dt=0.0, residual=0.0, seconds=0.0):

@@ -36,6 +36,17 @@ class JobPart:
     #: the problem carries the blank's inertia (a forming job with an areal density)
     inertial: bool = False
 
+    def create_problem(self, job, comm, law, damping: float, centred: bool, options: dict):
+        """The membrane problem when this part's job needs its own kind (e.g. a stack of
+        plies' StackProblem), built with the loop's ``law``, out-of-plane ``damping`` (N/mm^3)
+        and MembraneProblem ``options``; None (the default) leaves it to the loop."""
+        return None
+
+    def output_fields(self, problem):
+        """Fields this part adds to fields.xdmf: an object with ``functions`` ({name: DOLFINx
+        Function}) and ``update()`` (e.g. a stack's plies and interfaces), or None."""
+        return None
+
     def bind(self, problem, motion) -> None:
         """Once the membrane problem and the boundary motion exist."""
 

@@ -178,3 +178,18 @@ def ply_materials(stack: StackConfig, job_params, job_dir, surfaces: int | None 
             read[path] = load_material(path, surfaces, surfaces_key="surfaces")
         out.append(read[path])
     return out
+
+
+def create_job_stack_problem(job, comm, law, damping: float, centred: bool, options: dict):
+    """The StackProblem of a job with two or more ``[[plies]]`` (drape.fe.stack_problem): each
+    ply's law from its material file (drape.forming.plies.ply_materials) when one sets it,
+    else the job's ``law``; the ply-ply contact's penalty from ``[contact]``."""
+    from drape.fe.stack_problem import create_stack_problem
+    from drape.law.nested_surface import NestedSurfaceLaw
+    config = job.config
+    stack = config.stack
+    if any(ply.material for ply in stack.plies):
+        materials = ply_materials(stack, job.params, job.path.parent, config.surfaces)
+        options = dict(options, ply_laws=[NestedSurfaceLaw(params) for params in materials])
+    return create_stack_problem(comm, stack, config.mesh, config.contact, law, damping,
+                                centred=centred, **options)

@@ -107,6 +107,22 @@ class Forming(JobPart):
         self.say = log or (lambda *_: None)
         self._describe("holder" in surfaces)
 
+    def create_problem(self, job, comm, law, damping: float, centred: bool, options: dict):
+        """A stack of two plies or more: its StackProblem (drape.forming.plies); one blank:
+        None, the loop's MembraneProblem."""
+        if self.stack is None:
+            return None
+        from drape.forming.plies import create_job_stack_problem
+        return create_job_stack_problem(job, comm, law, damping, centred, options)
+
+    def output_fields(self, problem):
+        """A stack's XDMF fields: the ply of each cell, each interface's pressure and slips
+        (drape.forming.stack_reports.StackFields); None for one blank."""
+        if self.stack is None:
+            return None
+        from drape.forming.stack_reports import StackFields
+        return StackFields(problem)
+
     def _describe(self, has_holder: bool) -> None:
         """The log's line on the tools, the holder, the contact and the inertia."""
         process, contact = self.process, self.config.contact
