@@ -168,14 +168,17 @@ class StepLoop:
                      f"(t = {self.start[1]:.6g})")
         cell_fields = {name: field for part in self.parts
                        for name, field in part.cell_fields.items()}
-        self.disk = Disk(folder, comm, estimate(self.problem, config, len(cell_fields)))
+        extra_fields = self.output_fields()
+        self.disk = Disk(folder, comm, estimate(
+            self.problem, config, len(cell_fields),
+            extra_fields.functions.values() if extra_fields is not None else ()))
         self.disk.warn_at_start(self.say)
         self.checkpoints.disk = self.disk
         output = config.output
         self.writer = self.disk.write(FIELDS_FILE, lambda: ResultsWriter(
             folder, self.problem, xdmf=output.xdmf, xdmf_every=output.xdmf_every,
             snapshot=output.snapshot, append=self.start is not None,
-            extra_cell_fields=cell_fields or None, extra_fields=self.output_fields()),
+            extra_cell_fields=cell_fields or None, extra_fields=extra_fields),
             root_only=False, fields=True)
 
     def output_fields(self):

@@ -107,6 +107,26 @@ def test_a_one_ply_stack_reports_as_todays_blank(comm):
     assert list(StackFields(problem).functions) == ["ply"]
 
 
+def test_the_disk_estimate_counts_the_interface_fields(comm):
+    """A stack's XDMF fields (the DG0 ``ply``, three P1 fields per interface) add 8 bytes per
+    value and a field's XDMF overhead (1600 bytes) to each written step's estimate, and as
+    much to the whole run's need per written step (the fields and the checkpoints' copy)."""
+    from drape.io.disk import estimate
+    from drape.job import JobConfig
+    problem = _stack_problem(comm)
+    config = JobConfig()
+    fields = StackFields(problem)
+    assert len(fields.functions) == 4
+    nodes = problem.V.dofmap.index_map.size_global
+    cells = problem.mesh.topology.index_map(2).size_global
+    plain = estimate(problem, config)
+    stack = estimate(problem, config, extra_functions=fields.functions.values())
+    added = 8 * (cells + 3 * nodes) + 4 * 1600
+    assert stack["step"] - plain["step"] == pytest.approx(added / config.output.xdmf_every)
+    assert stack["total"] - plain["total"] == pytest.approx(
+        2 * plain["steps"] * added / config.output.xdmf_every)
+
+
 def test_each_ply_gets_its_own_shear_maps(comm, tmp_path):
     """The gathered cells of the prescribed shear: ply k's cells all at gamma_k; each ply's
     maps written (shear_flat_ply{k}.png, shear_formed_ply{k}.png)."""

@@ -58,9 +58,11 @@ def size(n: float | None) -> str:
     return f"{int(n)} B"
 
 
-def estimate(problem, config, extra_cell_fields: int = 0) -> dict[str, float]:
-    """Bytes a run writes: per written step (fields, ``extra_cell_fields`` beside the usual
-    ones, and a steps.csv row), per checkpoint
+def estimate(problem, config, extra_cell_fields: int = 0,
+             extra_functions=()) -> dict[str, float]:
+    """Bytes a run writes: per written step (fields, ``extra_cell_fields`` and the DOLFINx
+    ``extra_functions`` (e.g. a stack's interface fields) beside the usual ones, and a
+    steps.csv row), per checkpoint
     (without its copy of fields.h5), and the whole run's need (its least number of steps,
     1 / steps.maximum, with fields.h5 twice: the checkpoints keep a copy of it)."""
     nodes = problem.V.dofmap.index_map.size_global
@@ -69,6 +71,9 @@ def estimate(problem, config, extra_cell_fields: int = 0) -> dict[str, float]:
     extra = cells * len(problem.extra_weights) * len(problem.contributions)
     n_fields = 9 + extra_cell_fields
     fields = 8 * (3 * nodes + (13 + extra_cell_fields) * cells) + n_fields * 1600
+    for function in extra_functions:
+        space = function.function_space
+        fields += 8 * space.dofmap.index_map.size_global * space.dofmap.index_map_bs + 1600
     fields *= config.output.xdmf
     row = 1000
     per_step = fields / config.output.xdmf_every + row
