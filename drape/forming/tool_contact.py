@@ -93,61 +93,50 @@ class ToolContact(PointContribution):
             self.offsets[name] = np.array([0.0, 0.0, -down])
 
     def evaluate(self, positions, displacements):
-        if self.touched is not None:
-            return self._evaluate_stack(positions, displacements)
+        if self.heights is not None:    # a stack: each ply's points at its height
+            positions = positions + np.column_stack([np.zeros((len(positions), 2)),
+                                                     self.heights])
         f = np.zeros_like(positions)
         K = np.zeros(positions.shape + (3,))
         self.last = {}
         for name, surface in self.surfaces.items():
+            mine = slice(None) if self.touched is None else self.touched[name]
             offset = self.offsets[name]
-            query = surface.query(positions, offset, cutoff=self.cutoff)
+            query = surface.query(positions[mine], offset, cutoff=self.cutoff)
             # the slip since the last converged step plus the elastic slip held then: friction
             # with memory, so that a point drawn slowly over a tool reaches mu p whatever the
             # step size (without it a point drawn by less than the slip regularisation per step
             # never reaches mu p, and the forces depend on the steps; docs/forming-checks.md)
-            slip = (displacements - self.committed_u - (offset - self.committed_offsets[name])
-                    + self.elastic_slip[name])
+            slip = (displacements[mine] - self.committed_u[mine]
+                    - (offset - self.committed_offsets[name]) + self.elastic_slip[name][mine])
             response = traction(query.gap, query.normal, slip, self.penalty, self.friction,
                                 self.regularisation, touching_is_active=True,
                                 smoothing=self.smoothing)
-            f += response.traction
-            K -= response.tangent
-            self.last[name] = (query.gap, response)
-            self._trial_slip[name] = (slip, query.normal)
+            f[mine] += response.traction
+            K[mine] -= response.tangent
+            gap, response, slip, normal = self._on_every_point(mine, query.gap, response, slip,
+                                                               query.normal)
+            self.last[name] = (gap, response)
+            self._trial_slip[name] = (slip, normal)
         self._u = displacements
         return f, K
 
-    def _evaluate_stack(self, positions, displacements):
-        """:meth:`evaluate` on a stack: each tool on the points of its ply, lifted to the ply's
-        height; ``last`` holds every point (those of other plies out of contact)."""
+    def _on_every_point(self, mine, gap, response, slip, normal):
+        """A stack: a tool's values on the points of its ply (``mine``) spread over every
+        point, the others out of contact (infinite gap, no pressure); one blank: as they are."""
+        if self.touched is None:
+            return gap, response, slip, normal
         from drape.forming.contact import ContactResponse
-        positions = positions + np.column_stack([np.zeros((len(positions), 2)), self.heights])
-        f = np.zeros_like(positions)
-        K = np.zeros(positions.shape + (3,))
-        self.last = {}
-        n = len(positions)
-        for name, surface in self.surfaces.items():
-            mine, offset = self.touched[name], self.offsets[name]
-            query = surface.query(positions[mine], offset, cutoff=self.cutoff)
-            slip = (displacements[mine] - self.committed_u[mine]
-                    - (offset - self.committed_offsets[name]) + self.elastic_slip[name][mine])
-            part = traction(query.gap, query.normal, slip, self.penalty, self.friction,
-                            self.regularisation, touching_is_active=True,
-                            smoothing=self.smoothing)
-            f[mine] += part.traction
-            K[mine] -= part.tangent
-            gap = np.full(n, np.inf)
-            gap[mine] = query.gap
-            response = ContactResponse(np.zeros((n, 3)), np.zeros((n, 3, 3)), np.zeros(n),
-                                       np.zeros(n, dtype=part.state.dtype))
-            for full, values in zip(response, part):
-                full[mine] = values
-            self.last[name] = (gap, response)
-            full_slip, normal = np.zeros((n, 3)), np.zeros((n, 3))
-            full_slip[mine], normal[mine] = slip, query.normal
-            self._trial_slip[name] = (full_slip, normal)
-        self._u = displacements
-        return f, K
+        n = len(self.heights)
+        whole_gap = np.full(n, np.inf)
+        whole_gap[mine] = gap
+        whole = ContactResponse(np.zeros((n, 3)), np.zeros((n, 3, 3)), np.zeros(n),
+                                np.zeros(n, dtype=response.state.dtype))
+        for full, values in zip(whole, response):
+            full[mine] = values
+        whole_slip, whole_normal = np.zeros((n, 3)), np.zeros((n, 3))
+        whole_slip[mine], whole_normal[mine] = slip, normal
+        return whole_gap, whole, whole_slip, whole_normal
 
     def commit(self) -> None:
         """The converged step becomes the reference of the next; each point keeps the part of
