@@ -1,16 +1,20 @@
 """Newton's Jacobian against central differences of the residual deep in a forming stroke,
-where the punch, die and holder touch, friction slides and the law is plastic.
+where friction slides and the law is plastic. Half a step beyond the converged state the
+blank has moved down off the punch (only the die and holder touch); at the converged state
+(``--beyond 0``) every point sits on the law's and friction's kinks (the step's plastic and
+slip increments are zero there), so the one-sided derivatives differ.
 
     .venv/bin/python benchmarks/jacobian_depth.py configs/hemisphere.toml OUT 25 \
         --set output.xdmf=false
 
 Runs the job with the consistent tangent (``solver.neutral_loading_band=0``: the band is by
 design not the residual's derivative) to the stroke given (mm, ``process.stroke``), 1 rank,
-and at its last step, half a step on from the committed state (Newton's ground), compares the
-assembled Jacobian's action J d with (R(x + e d) - R(x - e d)) / 2e, e = 1e-6, for d = the
-last step's increment, the blank 1 mm down and 1 mm along x (tests/test_forming.py makes the
-same check at 5 mm). It prints |J d|, |FD - J d| (inf-norms) and how many law points are
-plastic there, and how many contact points stick and slip.
+and at its last step, half a step on from the committed state (Newton's ground; ``--beyond
+0``: at the converged state), compares the assembled Jacobian's action J d with
+(R(x + e d) - R(x - e d)) / 2e, e = 1e-6, for d = the last step's increment, the blank
+1 mm down and 1 mm along x (tests/test_forming.py makes the same check at 5 mm). It prints
+|J d|, |FD - J d| (inf-norms), how many law points are plastic there, and how many contact
+points of each tool stick and slip.
 """
 
 from __future__ import annotations
@@ -26,6 +30,10 @@ def main(argv=None) -> int:
     parser.add_argument("folder")
     parser.add_argument("stroke", type=float)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--beyond", type=float, default=0.5, metavar="S",
+                        help="check at the committed state plus S times the last increment "
+                        "(0.5: the test's ground; beyond the converged state the blank has "
+                        "moved down past the punch, and leaves it)")
     args = parser.parse_args(argv)
 
     from petsc4py import PETSc
@@ -47,7 +55,7 @@ def main(argv=None) -> int:
         increment = p.u_committed.vector.copy()
         increment.axpy(-1.0, p.u_previous.vector)
         x = p.u_committed.vector.copy()
-        x.axpy(0.5, increment)
+        x.axpy(args.beyond, increment)
         residual(p, x)
         A = p.create_matrix()
         p.jacobian(None, x, A, A)
@@ -55,8 +63,9 @@ def main(argv=None) -> int:
         tools = parts["run"].part(Forming).tool_contact
         states = {name: np.bincount(r.state, minlength=3)[1:].tolist()
                   for name, (_, r) in tools.last.items()}
-        print(f"at {args.stroke:g} mm, half a step on: {plastic} of {p.response.tau.size} law "
-              f"points plastic in the step; contact points (stick, slip): {states}")
+        print(f"at {args.stroke:g} mm, {args.beyond:g} step on: {plastic} of "
+              f"{p.response.tau.size} law points plastic in the step; contact points (stick, "
+              f"slip): {states}")
         directions = {"increment": increment}
         for name, step in (("down", [0.0, 0.0, -1.0]), ("along x", [1.0, 0.0, 0.0])):
             directions[name] = x.duplicate()
