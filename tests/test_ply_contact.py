@@ -589,3 +589,25 @@ def _vertices_of(problem, nodes):
     for c in range(len(cells)):
         vertex_of[cells[c]] = c_to_v.links(c)
     return np.unique(vertex_of[nodes]).astype(np.int32)
+
+
+def test_a_stacks_result_is_sorted_by_ply_then_coordinates(comm):
+    """result.npz's order (drape.io.writer.gather_sorted): two plies on one mesh share every
+    (x, y), so the ply is the first key: ply 0's nodes and points, then ply 1's, each in
+    (x, y) order, on any number of ranks; u_z = 1 + ply tells the plies' values apart."""
+    from drape.io.writer import gather_sorted
+    problem = _stack_problem(comm, [SQUARE, SQUARE], (0.4, 0.4), [CONSTANT], size=5.0)
+    ply = problem.ply_contact.nodes.ply[problem.global_nodes]
+    problem.u.x.array.reshape(-1, 3)[:, 2] = 1.0 + ply
+    problem.evaluate()
+    data = gather_sorted(problem)
+    if comm.rank != 0:
+        assert data is None
+        return
+    for xy, plies in ((data["node_xy"], data["node_ply"]), (data["point_xy"], data["point_ply"])):
+        half = len(xy) // 2
+        assert np.array_equal(plies, np.repeat([0, 1], half))
+        assert np.array_equal(xy[:half], xy[half:])
+        key = np.round(xy[:half] / 10.0, 9)
+        assert np.array_equal(np.lexsort((key[:, 1], key[:, 0])), np.arange(half))
+    assert np.array_equal(data["u"][:, 2], 1.0 + data["node_ply"])
