@@ -192,6 +192,55 @@ def test_the_interface_jacobian_is_the_derivative_of_its_forces(law):
     assert all(np.array_equal(a, b) for a, b in zip(again.memory, contact.memory))
 
 
+def _bent_twin_plies(order):
+    """Two plies 0.4 mm thick on the same 4 x 4 grid of 2 mm, node numbers and triangles in
+    ``order`` (a permutation of the nodes, as another partition numbers them), bent into a
+    dome 0.2 mm high and pressed 0.03 mm into each other: (nodes, u, old -> new numbers)."""
+    xy, quads = _grid(4, 4, 2.0, np.zeros(2))
+    n = len(xy)
+    reference = np.vstack([np.column_stack([xy, np.zeros(n)]),
+                           np.column_stack([xy, np.full(n, 0.4)])])
+    cells = np.vstack([quads, quads + n])
+    new = np.empty(2 * n, dtype=int)
+    new[order] = np.arange(2 * n)
+    triangles, origin = split_cells(new[cells], reference[order, :2])
+    cell_ply = np.r_[np.zeros(len(quads), int), np.ones(len(quads), int)]
+    turn = np.random.default_rng(7).permutation(len(triangles))
+    nodes = StackNodes(reference[order], np.r_[np.zeros(n, int), np.ones(n, int)][order],
+                       np.full(2 * n, 4.0), triangles[turn], cell_ply[origin][turn])
+    r2 = np.sum((nodes.reference[:, :2] - 4.0) ** 2, axis=1)
+    u = np.zeros((2 * n, 3))
+    u[:, 2] = 0.2 * (1.0 - r2 / 32.0)
+    u[nodes.ply == 1, 2] -= 0.03
+    return nodes, u, new
+
+
+def test_ties_between_master_triangles_do_not_depend_on_round_off_or_numbering():
+    """Every slave node of two plies meshed alike lies over a master vertex, as close to all
+    the triangles around it, whose normals differ once the plies bend: the winner of the tie
+    must not be decided by the last bits of u (MUMPS' order of summation differs between runs
+    and ranks) nor by the node numbers (the partition's). Forces per node (by its reference
+    position) under u, u changed by a few ulps, and the nodes renumbered: equal to round-off
+    (before ties were decided by their reference centroids: 1e-2 of the largest force)."""
+    rng = np.random.default_rng(3)
+    results = []
+    for order, noise in ((np.arange(50), 0.0), (np.arange(50), 4e-16),
+                         (rng.permutation(50), 0.0), (rng.permutation(50), 4e-16)):
+        nodes, u, new = _bent_twin_plies(order)
+        contact = PlyContact(nodes, (0.4, 0.4), [CONSTANT], penalty=100.0, smoothing=0.05,
+                             regularisation=0.05)
+        u = u * (1.0 + noise * rng.standard_normal(u.shape))
+        contact.search(u)
+        pairs = contact.evaluate(u, np.zeros_like(u))
+        force = np.zeros_like(u)
+        np.add.at(force, pairs.nodes, pairs.force)
+        results.append(force[new])              # back in the first numbering
+    scale = np.abs(results[0]).max()
+    assert scale > 1.0
+    for other in results[1:]:
+        assert np.abs(other - results[0]).max() <= 1e-12 * scale
+
+
 def test_the_friction_law_and_its_derivatives():
     p, v = np.array([0.0, 0.3, 2.0]), np.array([0.0, 1.5, 10.0])
     mu, dmu_dp, dmu_dv = DEPENDENT(p, v)
@@ -540,3 +589,25 @@ def _vertices_of(problem, nodes):
     for c in range(len(cells)):
         vertex_of[cells[c]] = c_to_v.links(c)
     return np.unique(vertex_of[nodes]).astype(np.int32)
+
+
+def test_a_stacks_result_is_sorted_by_ply_then_coordinates(comm):
+    """result.npz's order (drape.io.writer.gather_sorted): two plies on one mesh share every
+    (x, y), so the ply is the first key: ply 0's nodes and points, then ply 1's, each in
+    (x, y) order, on any number of ranks; u_z = 1 + ply tells the plies' values apart."""
+    from drape.io.writer import gather_sorted
+    problem = _stack_problem(comm, [SQUARE, SQUARE], (0.4, 0.4), [CONSTANT], size=5.0)
+    ply = problem.ply_contact.nodes.ply[problem.global_nodes]
+    problem.u.x.array.reshape(-1, 3)[:, 2] = 1.0 + ply
+    problem.evaluate()
+    data = gather_sorted(problem)
+    if comm.rank != 0:
+        assert data is None
+        return
+    for xy, plies in ((data["node_xy"], data["node_ply"]), (data["point_xy"], data["point_ply"])):
+        half = len(xy) // 2
+        assert np.array_equal(plies, np.repeat([0, 1], half))
+        assert np.array_equal(xy[:half], xy[half:])
+        key = np.round(xy[:half] / 10.0, 9)
+        assert np.array_equal(np.lexsort((key[:, 1], key[:, 0])), np.arange(half))
+    assert np.array_equal(data["u"][:, 2], 1.0 + data["node_ply"])

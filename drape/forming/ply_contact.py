@@ -47,6 +47,12 @@ from drape.forming.surfaces import closest_point_on_triangles
 EDGE_RAMP = 0.1
 #: default search margin (mm): how far nodes may move between searches
 DEFAULT_MARGIN = 0.5
+#: master triangles whose distance to a slave node is within this of the closest one's (mm)
+#: are a tie, decided by the triangles' reference centroids, not by round-off: a slave over a
+#: master vertex (every node of two plies meshed alike) is as close to all the triangles
+#: around it, whose normals differ once the ply bends, so the last bits of u (MUMPS' order
+#: of summation, the ranks) would otherwise pick the normal and the force
+TIE_TOLERANCE = 1e-6
 
 
 class FrictionLaw:
@@ -155,6 +161,7 @@ class PlyContact:
         self.friction_work = np.zeros(len(laws))
         self._trial = [None] * len(self.directions)
         self.candidates = [None] * len(self.directions)
+        self._tie_rank = _reference_order(nodes)
         self.searched_at = None
         self.counts = {"searches": 0, "pairs": 0}
 
@@ -224,14 +231,22 @@ class PlyContact:
                           np.concatenate([p.jacobian for p in parts]))
 
     def _closest(self, i, x):
-        """Per slave with candidates, its closest candidate triangle: (slaves, triangles)."""
+        """Per slave with candidates, its closest candidate triangle: (slaves, triangles).
+        Triangles within TIE_TOLERANCE of the closest are a tie, won by the first in the
+        reference order of their centroids, whatever the ranks and the node numbers."""
         slaves, triangles = self.candidates[i]
         if not len(slaves):
             return slaves, triangles
         corners = x[self.nodes.triangles[triangles]]
-        _, _, distance = closest_point_on_triangles(x[slaves], corners[:, 0], corners[:, 1],
-                                                    corners[:, 2])
-        order = np.lexsort((distance, slaves))
+        _, _, squared = closest_point_on_triangles(x[slaves], corners[:, 0], corners[:, 1],
+                                                   corners[:, 2])
+        distance = np.sqrt(squared)
+        each, which = np.unique(slaves, return_inverse=True)
+        nearest = np.full(len(each), np.inf)
+        np.minimum.at(nearest, which, distance)
+        tied = distance <= nearest[which] + TIE_TOLERANCE
+        rank = self._tie_rank[triangles] + np.where(tied, 0, len(self._tie_rank))
+        order = np.lexsort((rank, slaves))
         first = np.ones(len(order), dtype=bool)
         first[1:] = slaves[order][1:] != slaves[order][:-1]
         chosen = order[first]
@@ -351,6 +366,19 @@ class PlyContact:
                                                float(-trial["gap"][touching].min()))
             entry["nodes_in_contact"] += int(np.count_nonzero(trial["pressure"] > 0.0))
         return out
+
+
+def _reference_order(nodes: StackNodes) -> np.ndarray:
+    """Each master triangle's place (T,) in the order of (ply, x, y) of its reference
+    centroid: the same on any number of ranks, where the node numbers are not."""
+    if not len(nodes.triangles):
+        return np.zeros(0, dtype=np.int64)
+    # rounded: the mean of three coordinates may differ in its last bit with their order
+    centroids = np.round(nodes.reference[nodes.triangles].mean(axis=1), 6)
+    order = np.lexsort((centroids[:, 1], centroids[:, 0], nodes.triangle_ply))
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    return rank
 
 
 def _edge_ramp(lam, dlam):

@@ -203,8 +203,10 @@ class ResultsWriter:
 
 
 def gather_sorted(problem) -> dict[str, np.ndarray] | None:
-    """Nodal u and point values of the committed response, on rank 0, in coordinate order
-    (the same for any number of ranks); None on other ranks."""
+    """Nodal u and point values of the committed response, on rank 0, in the order of
+    (ply, x, y) (the same for any number of ranks: the plies of a stack share their x, y);
+    None on other ranks. A stack also gets each node's and point's ply (``node_ply``,
+    ``point_ply``)."""
     comm = problem.comm
     V = problem.V
     n_owned = V.dofmap.index_map.size_local
@@ -214,23 +216,42 @@ def gather_sorted(problem) -> dict[str, np.ndarray] | None:
     points = problem.point_coordinates
     point_values = np.column_stack([response.tau, np.degrees(response.trial.gamma_p),
                                     response.gamma_t_deg, response.dtau_dC12])
-    gathered = comm.gather((nodes, u, points, point_values), root=0)
+    node_ply, point_ply = _plies(problem, n_owned, len(points))
+    gathered = comm.gather((nodes, u, points, point_values, node_ply, point_ply), root=0)
     if comm.rank != 0:
         return None
-    nodes, u, points, point_values = (np.concatenate(part) for part in zip(*gathered))
-    node_order = _coordinate_order(nodes)
-    point_order = _coordinate_order(points)
-    return {"node_xy": nodes[node_order], "u": u[node_order],
-            "point_xy": points[point_order], "tau": point_values[point_order, 0],
-            "gamma_p_deg": point_values[point_order, 1],
-            "gamma_t_deg": point_values[point_order, 2],
-            "dtau_dC12": point_values[point_order, 3]}
+    nodes, u, points, point_values, node_ply, point_ply = (np.concatenate(part)
+                                                           for part in zip(*gathered))
+    node_order = _coordinate_order(nodes, node_ply)
+    point_order = _coordinate_order(points, point_ply)
+    out = {"node_xy": nodes[node_order], "u": u[node_order],
+           "point_xy": points[point_order], "tau": point_values[point_order, 0],
+           "gamma_p_deg": point_values[point_order, 1],
+           "gamma_t_deg": point_values[point_order, 2],
+           "dtau_dC12": point_values[point_order, 3]}
+    if getattr(problem.blank_mesh, "n_plies", 1) > 1:
+        out.update(node_ply=node_ply[node_order], point_ply=point_ply[point_order])
+    return out
 
 
-def _coordinate_order(xy: np.ndarray) -> np.ndarray:
+def _plies(problem, n_owned: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ply of each owned node and of each law point (zeros for one ply)."""
+    cell_ply = getattr(problem, "cell_ply", None)
+    if cell_ply is None or not np.any(cell_ply):
+        return np.zeros(n_owned, dtype=np.int32), np.zeros(n_points, dtype=np.int32)
+    dofmap = problem.V.dofmap
+    cells = dofmap.list.array.reshape(-1, dofmap.dof_layout.num_dofs)
+    node_ply = np.zeros(n_owned + dofmap.index_map.num_ghosts, dtype=np.int32)
+    node_ply[cells.ravel()] = np.repeat(cell_ply[: len(cells)], cells.shape[1])
+    n_cells = problem.n_cells
+    point_ply = np.repeat(cell_ply[:n_cells], n_points // n_cells if n_cells else 0)
+    return node_ply[:n_owned], point_ply.astype(np.int32)
+
+
+def _coordinate_order(xy: np.ndarray, ply: np.ndarray) -> np.ndarray:
     scale = max(1.0, float(np.abs(xy).max())) if xy.size else 1.0
     key = np.round(xy / scale, 9)
-    return np.lexsort((key[:, 1], key[:, 0]))
+    return np.lexsort((key[:, 1], key[:, 0], ply))
 
 
 def _abandon(stream) -> None:
