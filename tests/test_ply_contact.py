@@ -192,6 +192,54 @@ def test_the_interface_jacobian_is_the_derivative_of_its_forces(law):
     assert all(np.array_equal(a, b) for a, b in zip(again.memory, contact.memory))
 
 
+def test_the_near_candidates_hold_the_closest_triangle_until_the_next_search():
+    """The search keeps, per slave, the triangles that can be its closest while no two nodes
+    move more than the margin relative to each other: forces equal those of a search over
+    every triangle (margin 100 mm) for motions within that bound; and only pairs less than
+    g0 + 2 margin apart enter the Jacobian's pattern."""
+    rng = np.random.default_rng(3)
+    xy0, quads0 = _grid(8, 8, 1.0, np.zeros(2))
+    xy1, quads1 = _grid(6, 6, 1.0, np.array([0.37, 0.61]))
+    reference = np.vstack([np.column_stack([xy0, np.zeros(len(xy0))]),
+                           np.column_stack([xy1, np.full(len(xy1), 0.5)])])
+    ply = np.r_[np.zeros(len(xy0), int), np.ones(len(xy1), int)]
+    tri0, _ = split_cells(quads0, reference[:, :2])
+    tri1, _ = split_cells(quads1 + len(xy0), reference[:, :2])
+    nodes = StackNodes(reference, ply, np.ones(len(reference)), np.vstack([tri0, tri1]),
+                       np.r_[np.zeros(len(tri0), int), np.ones(len(tri1), int)])
+    n = len(reference)
+    options = dict(penalty=50.0, smoothing=0.05, regularisation=0.05)
+    contact = PlyContact(nodes, (0.5, 0.5), [CONSTANT], margin=0.5, **options)
+    every = PlyContact(nodes, (0.5, 0.5), [CONSTANT], margin=100.0, **options)
+    u0 = rng.normal(0.0, 0.05, (n, 3))
+    contact.search(u0)
+    kept = sum(len(c[0]) for c in contact.candidates)
+    every.search(u0)
+    assert kept < 0.5 * sum(len(c[0]) for c in every.candidates)
+    for _ in range(20):
+        # the nodes' motions at most 0.49 margin from their middle (no new search), the
+        # upper ply pressed into the lower
+        step = rng.normal(0.0, 0.1, (n, 3))
+        step[ply == 1, 2] -= 0.02
+        middle = 0.5 * (step.max(axis=0) + step.min(axis=0))
+        step = middle + (step - middle) * 0.49 * 0.5 / np.linalg.norm(step - middle,
+                                                                       axis=1).max()
+        u = u0 + [1.0, -0.5, 0.2] + step
+        mine, theirs = contact.evaluate(u, u0), every.evaluate(u, u0)
+        assert np.array_equal(mine.nodes, theirs.nodes)
+        assert np.allclose(mine.force, theirs.force, rtol=0.0, atol=1e-12)
+    assert contact.counts["searches"] == 1
+    # flat plies lifted apart by g: pressed pairs for g below g0 + 2 margin = 1.05 mm only
+    for lift, pairs in ((1.0, True), (1.1, False)):
+        u = np.zeros((n, 3))
+        u[ply == 1, 2] = lift
+        contact.search(u)
+        coupled = contact.coupled_nodes()
+        assert [len(c) > 0 for c in coupled] == [pairs, pairs]
+        if pairs:
+            assert set(coupled[1][:, 0]) == set(np.nonzero(ply == 1)[0])
+
+
 def test_the_friction_law_and_its_derivatives():
     p, v = np.array([0.0, 0.3, 2.0]), np.array([0.0, 1.5, 10.0])
     mu, dmu_dp, dmu_dv = DEPENDENT(p, v)
