@@ -298,6 +298,42 @@ def test_the_stack_jacobian_is_the_derivative_of_its_residual(comm):
     assert A.getInfo()["mallocs"] == 0
 
 
+def test_the_pattern_follows_each_steps_search_and_the_factorisation_with_it(comm):
+    """The first Jacobian after a search preallocates the new pairs' pattern (no malloc) and
+    resets a factorisation's KSP, which would keep its analysis of the old pattern: LU solves
+    (MUMPS, the matrix shifted to be regular) hold before and after the plies slid 1.3 mm."""
+    from mpi4py import MPI
+    from petsc4py import PETSc
+    problem = _stack_problem(comm, [SQUARE, SLANTED], (0.4, 0.4), [CONSTANT])
+    _pressed_and_shifted(problem)
+    A = problem.create_matrix("baij")
+    snes = PETSc.SNES().create(comm)
+    ksp = snes.getKSP()
+    ksp.setType("preonly")
+    ksp.getPC().setType("lu")
+    ksp.getPC().setFactorSolverType("mumps")
+    upper = problem.ply_contact.nodes.ply[problem.global_nodes] == 1
+    patterns = []
+    for slide in (0.0, 1.3):
+        problem.u.x.array.reshape(-1, 3)[upper] += [slide, 0.0, 0.0]
+        problem.u.x.scatter_forward()
+        problem.begin_step()
+        x = problem.u.vector.copy()
+        problem.jacobian(snes, x, A, A)
+        A.shift(1e-3 * A.norm(PETSc.NormType.INFINITY))
+        ksp.setOperators(A, A)
+        b, y = A.createVecLeft(), A.createVecRight()
+        b.array[:] = np.cos(np.arange(len(b.array)) + comm.rank)
+        ksp.solve(b, y)
+        check = b.duplicate()
+        A.mult(y, check)
+        check.axpy(-1.0, b)
+        assert check.norm() <= 1e-8 * b.norm()
+        assert A.getInfo()["mallocs"] == 0
+        patterns.append(sorted(map(tuple, np.vstack(problem.ply_contact.coupled_nodes()))))
+    assert comm.allreduce(patterns[0] != patterns[1], op=MPI.LOR)
+
+
 def test_a_one_ply_stack_problem_is_todays_membrane_problem(comm):
     """No interface, no coupling: residual and Jacobian action are today's, value for value."""
     from drape.fe.membrane import MembraneProblem
