@@ -241,6 +241,54 @@ def test_ties_between_master_triangles_do_not_depend_on_round_off_or_numbering()
         assert np.abs(other - results[0]).max() <= 1e-12 * scale
 
 
+def test_the_near_candidates_hold_the_closest_triangle_until_the_next_search():
+    """The search keeps, per slave, the triangles that can be its closest while no two nodes
+    move more than the margin relative to each other: forces equal those of a search over
+    every triangle (margin 100 mm) for motions within that bound; and only pairs less than
+    g0 + 2 margin apart enter the Jacobian's pattern."""
+    rng = np.random.default_rng(3)
+    xy0, quads0 = _grid(8, 8, 1.0, np.zeros(2))
+    xy1, quads1 = _grid(6, 6, 1.0, np.array([0.37, 0.61]))
+    reference = np.vstack([np.column_stack([xy0, np.zeros(len(xy0))]),
+                           np.column_stack([xy1, np.full(len(xy1), 0.5)])])
+    ply = np.r_[np.zeros(len(xy0), int), np.ones(len(xy1), int)]
+    tri0, _ = split_cells(quads0, reference[:, :2])
+    tri1, _ = split_cells(quads1 + len(xy0), reference[:, :2])
+    nodes = StackNodes(reference, ply, np.ones(len(reference)), np.vstack([tri0, tri1]),
+                       np.r_[np.zeros(len(tri0), int), np.ones(len(tri1), int)])
+    n = len(reference)
+    options = dict(penalty=50.0, smoothing=0.05, regularisation=0.05)
+    contact = PlyContact(nodes, (0.5, 0.5), [CONSTANT], margin=0.5, **options)
+    every = PlyContact(nodes, (0.5, 0.5), [CONSTANT], margin=100.0, **options)
+    u0 = rng.normal(0.0, 0.05, (n, 3))
+    contact.search(u0)
+    kept = sum(len(c[0]) for c in contact.candidates)
+    every.search(u0)
+    assert kept < 0.5 * sum(len(c[0]) for c in every.candidates)
+    for _ in range(20):
+        # the nodes' motions at most 0.49 margin from their middle (no new search), the
+        # upper ply pressed into the lower
+        step = rng.normal(0.0, 0.1, (n, 3))
+        step[ply == 1, 2] -= 0.02
+        middle = 0.5 * (step.max(axis=0) + step.min(axis=0))
+        step = middle + (step - middle) * 0.49 * 0.5 / np.linalg.norm(step - middle,
+                                                                       axis=1).max()
+        u = u0 + [1.0, -0.5, 0.2] + step
+        mine, theirs = contact.evaluate(u, u0), every.evaluate(u, u0)
+        assert np.array_equal(mine.nodes, theirs.nodes)
+        assert np.allclose(mine.force, theirs.force, rtol=0.0, atol=1e-12)
+    assert contact.counts["searches"] == 1
+    # flat plies lifted apart by g: pressed pairs for g below g0 + 2 margin = 1.05 mm only
+    for lift, pairs in ((1.0, True), (1.1, False)):
+        u = np.zeros((n, 3))
+        u[ply == 1, 2] = lift
+        contact.search(u)
+        coupled = contact.coupled_nodes()
+        assert [len(c) > 0 for c in coupled] == [pairs, pairs]
+        if pairs:
+            assert set(coupled[1][:, 0]) == set(np.nonzero(ply == 1)[0])
+
+
 def test_the_friction_law_and_its_derivatives():
     p, v = np.array([0.0, 0.3, 2.0]), np.array([0.0, 1.5, 10.0])
     mu, dmu_dp, dmu_dv = DEPENDENT(p, v)
@@ -297,6 +345,42 @@ def test_the_stack_jacobian_is_the_derivative_of_its_residual(comm):
     A = problem.create_matrix()
     problem.jacobian(None, x, A, A)
     assert A.getInfo()["mallocs"] == 0
+
+
+def test_the_pattern_follows_each_steps_search_and_the_factorisation_with_it(comm):
+    """The first Jacobian after a search preallocates the new pairs' pattern (no malloc) and
+    resets a factorisation's KSP, which would keep its analysis of the old pattern: LU solves
+    (MUMPS, the matrix shifted to be regular) hold before and after the plies slid 1.3 mm."""
+    from mpi4py import MPI
+    from petsc4py import PETSc
+    problem = _stack_problem(comm, [SQUARE, SLANTED], (0.4, 0.4), [CONSTANT])
+    _pressed_and_shifted(problem)
+    A = problem.create_matrix("baij")
+    snes = PETSc.SNES().create(comm)
+    ksp = snes.getKSP()
+    ksp.setType("preonly")
+    ksp.getPC().setType("lu")
+    ksp.getPC().setFactorSolverType("mumps")
+    upper = problem.ply_contact.nodes.ply[problem.global_nodes] == 1
+    patterns = []
+    for slide in (0.0, 1.3):
+        problem.u.x.array.reshape(-1, 3)[upper] += [slide, 0.0, 0.0]
+        problem.u.x.scatter_forward()
+        problem.begin_step()
+        x = problem.u.vector.copy()
+        problem.jacobian(snes, x, A, A)
+        A.shift(1e-3 * A.norm(PETSc.NormType.INFINITY))
+        ksp.setOperators(A, A)
+        b, y = A.createVecLeft(), A.createVecRight()
+        b.array[:] = np.cos(np.arange(len(b.array)) + comm.rank)
+        ksp.solve(b, y)
+        check = b.duplicate()
+        A.mult(y, check)
+        check.axpy(-1.0, b)
+        assert check.norm() <= 1e-8 * b.norm()
+        assert A.getInfo()["mallocs"] == 0
+        patterns.append(sorted(map(tuple, np.vstack(problem.ply_contact.coupled_nodes()))))
+    assert comm.allreduce(patterns[0] != patterns[1], op=MPI.LOR)
 
 
 def test_a_one_ply_stack_problem_is_todays_membrane_problem(comm):

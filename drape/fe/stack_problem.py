@@ -4,10 +4,11 @@
 :class:`~drape.fe.stack_mesh.StackMesh` whose residual and Jacobian also hold the ply-ply
 contact of :mod:`drape.forming.ply_contact`. The contact couples a node of one ply with the
 nodes of a triangle of another: entries a form's sparsity pattern does not have. So
-:meth:`StackProblem.create_matrix` builds the form's pattern, adds every candidate pair's node
-blocks to it (over an index map whose ghosts include the partner nodes another rank owns),
-finalises it and creates the matrix from it; the coupling is added after the form's assembly,
-with global indices (PETSc sends the entries of rows another rank owns).
+:meth:`StackProblem.create_matrix` preallocates the form's pattern plus the node blocks of the
+pairs that can be pressed before the next search (every rank's, each rank its own rows), and
+:meth:`StackProblem.jacobian` does so again after each load step's search: the direct solver's
+factors grow with every coupling entry. The coupling is added after the form's assembly, with
+global indices (PETSc sends the entries of rows another rank owns).
 
 MPI: every residual gathers the owned displacements of all ranks into one global (N, 3) array
 (:meth:`gather`), each rank evaluates the pairs of the slave nodes it owns, so every pair is
@@ -48,14 +49,13 @@ class StackProblem(MembraneProblem):
         self.global_nodes = np.asarray(index_map.local_to_global(
             np.arange(n_local, dtype=np.int32)), dtype=np.int64)
         self.n_global = index_map.size_global
-        ranges = self.comm.allgather(index_map.local_range)
-        self._range_starts = np.array([r[0] for r in ranges], dtype=np.int64)
         self.first = index_map.local_range[0]
         nodes = self._stack_nodes(stack_mesh)
         owned = np.zeros(self.n_global, dtype=bool)
         owned[self.global_nodes[: self.n_owned]] = True
         self.ply_contact = PlyContact(nodes, stack_mesh.thicknesses, laws, penalty, smoothing,
                                       regularisation, owned=owned, margin=margin)
+        self._pattern_version, self._form_entries = 0, None
         self.begin_step()
         self._forces_at = None
         self._constrained_for = None
@@ -108,6 +108,8 @@ class StackProblem(MembraneProblem):
         """Search the candidate pairs at the current displacement (once per load step)."""
         start = time.perf_counter()
         self.ply_contact.search(self.gather(self.u))
+        # the Jacobian's pattern follows this search (jacobian, _preallocate)
+        self._pattern_version += 1
         self.timings["ply_search"] += time.perf_counter() - start
 
     def commit(self, t: float | None = None) -> None:
@@ -164,97 +166,96 @@ class StackProblem(MembraneProblem):
 
     def jacobian(self, snes, x, A, P) -> None:
         from petsc4py import PETSc
+        if A.getAttr("drape_pattern") != self._pattern_version:
+            self._remake_pattern(snes, A)
         super().jacobian(snes, x, A, P)
         forces = self._ensure_forces()
         start = time.perf_counter()
         constrained = self._constrained()
-        dofs = (3 * forces.nodes[:, :, None] + np.arange(3)).reshape(-1, 12)
-        blocks = -forces.jacobian.reshape(-1, 12, 12)
-        free = ~constrained[dofs]
-        blocks = blocks * free[:, :, None] * free[:, None, :]
-        for pair_dofs, block in zip(dofs.astype(PETSc.IntType), blocks):
-            A.setValues(pair_dofs, pair_dofs, block, addv=PETSc.InsertMode.ADD)
+        nodes = forces.nodes
+        free = ~constrained[3 * nodes[:, :, None] + np.arange(3)]              # (P, 4, 3)
+        # the (P, 4, 4) node blocks of 3 x 3, each pair's rows in turn: PETSc adds them to
+        # every entry in the order one setValues per pair did
+        blocks = -(forces.jacobian * free[:, :, :, None, None] * free[:, None, None, :, :])
+        blocks = blocks.transpose(0, 1, 3, 2, 4)
+        rows = nodes.ravel().astype(PETSc.IntType)
+        columns = np.repeat(nodes, 4, axis=0).ravel().astype(PETSc.IntType)
+        starts = np.arange(0, len(columns) + 1, 4, dtype=PETSc.IntType)
+        A.setValuesBlockedIJV(starts, columns, np.ascontiguousarray(blocks).ravel(),
+                              addv=PETSc.InsertMode.ADD, rowmap=rows)
         A.assemble()
         self.timings["ply_assembly"] += time.perf_counter() - start
 
     def create_matrix(self, mat_type: str | None = None):
-        """The form's sparsity pattern enlarged by the candidate pairs' blocks (module
-        docstring); pairs a later search finds outside it are still accepted (PETSc allocates
-        them), so a pattern made at the first step stays valid."""
-        from dolfinx import cpp
-        from petsc4py import PETSc
-
-        rows, columns = self._coupled_entries()
-        extended, to_local = self._extended_index_map(rows, columns)
-        pattern = cpp.la.SparsityPattern(self.comm, [extended, extended], [3, 3])
-        local_rows, local_columns = to_local(rows), to_local(columns)
-        order = np.argsort(local_rows, kind="stable")
-        local_rows, local_columns = local_rows[order], local_columns[order]
-        starts = np.flatnonzero(np.r_[True, local_rows[1:] != local_rows[:-1]])
-        ends = np.r_[starts[1:], len(local_rows)]
-        for s, e in zip(starts, ends):
-            pattern.insert(local_rows[s: s + 1], local_columns[s:e])
-        pattern.assemble()
-        A = cpp.la.petsc.create_matrix(self.comm, pattern, mat_type or "")
-        # zeros at every entry of the pattern, then an assembly: PETSc drops the preallocated
-        # entries an assembly finds unset, and the first Jacobian's form assembly (finished by
-        # an assembly of its own) would drop the coupling's before it is added
-        global_rows = rows[order]
-        global_columns = columns[order]
-        for s, e in zip(starts, ends):
-            A.setValuesBlocked(global_rows[s: s + 1].astype(PETSc.IntType),
-                               global_columns[s:e].astype(PETSc.IntType),
-                               np.zeros(9 * (e - s)), addv=PETSc.InsertMode.ADD)
-        A.assemble()
-        A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        """The form's matrix (DOLFINx's layout and local-to-global map) with its sparsity
+        pattern enlarged by the coupling of the pairs that can be pressed before the next
+        search (module docstring); made again at the first Jacobian after a load step's
+        search. Pairs a search within the step finds outside it are still accepted (PETSc
+        allocates them)."""
+        A = super().create_matrix(mat_type)
+        self._preallocate(A)
         return A
 
+    def _remake_pattern(self, snes, A) -> None:
+        """The pattern of the last search for A, the first Jacobian after it (collective). A
+        factorisation would keep its analysis of the old pattern (PETSc's preallocation does
+        not mark the pattern as changed): its KSP is reset, to analyse the new one. Other
+        preconditioners (the field split keeps its index sets) keep the old pattern, which
+        PETSc's allocations enlarge where a pair falls outside it."""
+        if snes is not None:
+            ksp = snes.getKSP()
+            if ksp.getPC().getType() not in ("lu", "cholesky"):
+                A.setAttr("drape_pattern", self._pattern_version)
+                return
+            ksp.reset()
+        self._preallocate(A)
+
+    def _preallocate(self, A) -> None:
+        """Give A the pattern of the form and of the pairs of the last load step's search,
+        zeros at every entry (collective)."""
+        from petsc4py import PETSc
+        rows, columns = self._coupled_entries()
+        keys = np.unique(rows * self.n_global + columns)
+        rows, columns = np.divmod(keys, self.n_global)
+        counts = np.bincount(rows - self.first, minlength=self.n_owned)
+        if "baij" in A.getType():
+            starts = np.r_[0, np.cumsum(counts)]
+        else:
+            # AIJ: every block entry as its 3 x 3 scalars, row by row
+            counts = np.repeat(3 * counts, 3)
+            starts = np.r_[0, np.cumsum(counts)]
+            per_row = np.split(columns, np.cumsum(counts[::3] // 3)[:-1])
+            columns = np.concatenate([np.tile((3 * c[:, None] + np.arange(3)).ravel(), 3)
+                                      for c in per_row]) if len(per_row) else columns
+        A.setPreallocationCSR((starts.astype(PETSc.IntType), columns.astype(PETSc.IntType)))
+        A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        A.setAttr("drape_pattern", self._pattern_version)
+
     def _coupled_entries(self):
-        """The global (block) rows and columns of the Jacobian's entries on this rank: the
-        form's owned rows, then every candidate pair's 4 x 4 node blocks."""
-        from dolfinx import fem
-        form_pattern = fem.create_sparsity_pattern(self.jacobian_form)
-        form_pattern.assemble()
-        graph = form_pattern.graph
-        # the owned rows (the graph may list the ghost rows after them, empty)
-        offsets = np.asarray(graph.offsets)[: self.n_owned + 1]
-        rows = np.repeat(np.arange(self.n_owned, dtype=np.int64), np.diff(offsets))
-        columns = np.asarray(form_pattern.column_index_map().local_to_global(
-            np.asarray(graph.array[: offsets[-1]], dtype=np.int32)), dtype=np.int64)
-        rows = self.first + rows
+        """The global (block) rows and columns of the Jacobian's entries in the rows this rank
+        owns: the form's, then the 4 x 4 node blocks of every rank's pairs that can be
+        pressed (:meth:`~drape.forming.ply_contact.PlyContact.coupled_nodes`)."""
+        if self._form_entries is None:
+            from dolfinx import fem
+            form_pattern = fem.create_sparsity_pattern(self.jacobian_form)
+            form_pattern.assemble()
+            graph = form_pattern.graph
+            # the owned rows (the graph may list the ghost rows after them, empty)
+            offsets = np.asarray(graph.offsets)[: self.n_owned + 1]
+            rows = np.repeat(np.arange(self.n_owned, dtype=np.int64), np.diff(offsets))
+            columns = np.asarray(form_pattern.column_index_map().local_to_global(
+                np.asarray(graph.array[: offsets[-1]], dtype=np.int32)), dtype=np.int64)
+            self._form_entries = (self.first + rows, columns)
+        rows, columns = self._form_entries
         pairs = [p for p in self.ply_contact.coupled_nodes() if len(p)]
-        if pairs:
-            pairs = np.vstack(pairs)
-            pair_rows = np.repeat(pairs, 4, axis=1).ravel()
-            pair_columns = np.tile(pairs, (1, 4)).ravel()
-            rows = np.concatenate([rows, pair_rows])
-            columns = np.concatenate([columns, pair_columns])
-        return rows, columns
+        pairs = np.vstack(pairs) if pairs else np.zeros((0, 4), dtype=np.int64)
+        pairs = np.vstack(self.comm.allgather(pairs)).astype(np.int64)
+        pair_rows = np.repeat(pairs, 4, axis=1).ravel()
+        pair_columns = np.tile(pairs, (1, 4)).ravel()
+        mine = (pair_rows >= self.first) & (pair_rows < self.first + self.n_owned)
+        return (np.concatenate([rows, pair_rows[mine]]),
+                np.concatenate([columns, pair_columns[mine]]))
 
-    def _extended_index_map(self, rows, columns):
-        """The displacement's index map with every partner node of another rank as a ghost,
-        and the map from global to local (block) indices on it."""
-        from dolfinx import cpp
-        index_map = self.V.dofmap.index_map
-        ghosts = np.asarray(index_map.ghosts, dtype=np.int64)
-        last = self.first + self.n_owned
-        outside = np.unique(np.concatenate([rows, columns]))
-        outside = outside[((outside < self.first) | (outside >= last))
-                          & ~np.isin(outside, ghosts)]
-        all_ghosts = np.concatenate([ghosts, outside])
-        owners = np.searchsorted(self._range_starts, all_ghosts, side="right") - 1
-        extended = cpp.common.IndexMap(self.comm, self.n_owned, all_ghosts,
-                                       owners.astype(np.int32))
-        local = {int(g): self.n_owned + i for i, g in enumerate(all_ghosts)}
-
-        def to_local(indices):
-            owned = (indices >= self.first) & (indices < last)
-            out = np.empty(len(indices), dtype=np.int32)
-            out[owned] = indices[owned] - self.first
-            out[~owned] = [local[int(g)] for g in indices[~owned]]
-            return out
-
-        return extended, to_local
 
 def create_stack_problem(comm, stack, mesh_config, contact, law, damping: float,
                          centred: bool = True, ply_laws=None, **options) -> StackProblem:

@@ -162,6 +162,7 @@ class PlyContact:
         self._trial = [None] * len(self.directions)
         self.candidates = [None] * len(self.directions)
         self._tie_rank = _reference_order(nodes)
+        self._reachable = [None] * len(self.directions)
         self.searched_at = None
         self.counts = {"searches": 0, "pairs": 0}
 
@@ -171,15 +172,24 @@ class PlyContact:
 
     # --- candidate pairs ------------------------------------------------------------------------
     def search(self, u: np.ndarray) -> None:
-        """Candidate (slave, triangle) pairs at displacements u (N, 3): every master triangle
+        """Candidate (slave, triangle) pairs at displacements u (N, 3): of the master triangles
         whose centroid lies within its radius plus the contact reach plus the margin of a slave
-        node this rank owns."""
+        node this rank owns, those that can be its closest until the next search (below). Of
+        these, :meth:`coupled_nodes` are the pairs that can carry a force until then.
+
+        Until the next search no two nodes move more than the margin m relative to each other
+        (:meth:`_ensure_candidates`), so a slave's distance to a triangle changes by at most m:
+        the triangle closest then is at most 2 m farther now than the closest now. The gap of
+        a pair whose projection stays near its triangle changes by about m too (1.4 m at the
+        edge ramp's end), so a pair more than the penalty's smoothing g0 plus 2 m apart now
+        cannot be pressed before the next search."""
         x = self.nodes.reference + u
         for i, direction in enumerate(self.directions):
             slaves = np.nonzero(self.owned & (self.nodes.ply == direction.slave))[0]
             masters = np.nonzero(self.nodes.triangle_ply == direction.master)[0]
             if not len(slaves) or not len(masters):
-                self.candidates[i] = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+                empty = np.zeros(0, dtype=np.int64)
+                self.candidates[i], self._reachable[i] = (empty, empty), np.zeros(0, dtype=bool)
                 continue
             corners = x[self.nodes.triangles[masters]]
             centroids = corners.mean(axis=1)
@@ -191,9 +201,30 @@ class PlyContact:
             pair_slaves = np.repeat(slaves, counts)
             pair_triangles = masters[np.concatenate(found).astype(np.int64)] if counts.sum() \
                 else np.zeros(0, dtype=np.int64)
-            self.candidates[i] = (pair_slaves, pair_triangles)
+            near, reachable = self._can_touch(direction, x, pair_slaves, pair_triangles)
+            self.candidates[i] = (pair_slaves[near], pair_triangles[near])
+            self._reachable[i] = reachable[near]
         self.searched_at = np.array(u, copy=True)
         self.counts["searches"] += 1
+
+    def _can_touch(self, direction, x, slaves, triangles):
+        """Of the pairs (slaves sorted), which can be the slave's closest before the next
+        search, and which can be pressed then (:meth:`search`): two masks."""
+        if not len(slaves):
+            return np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
+        a, b, c = (x[self.nodes.triangles[triangles, k]] for k in range(3))
+        _, _, squared = closest_point_on_triangles(x[slaves], a, b, c)
+        distance = np.sqrt(squared)
+        starts = np.flatnonzero(np.r_[True, slaves[1:] != slaves[:-1]])
+        nearest = np.repeat(np.minimum.reduceat(distance, starts),
+                            np.diff(np.r_[starts, len(slaves)]))
+        # the bound, widened by round-off, so that ties with the closest are kept
+        near = distance <= nearest + 2.0 * self.margin * (1.0 + 1e-9) + 1e-12
+        normal = np.cross(b - a, c - a)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            normal *= direction.sign / np.linalg.norm(normal, axis=1)[:, None]
+            gap = np.sum((x[slaves] - a) * normal, axis=1) - direction.offset
+        return near, gap <= self.smoothing + 2.0 * self.margin
 
     def _ensure_candidates(self, u) -> None:
         """Search again once two nodes may have moved more than the margin relative to each
@@ -207,11 +238,13 @@ class PlyContact:
         self.search(u)
 
     def coupled_nodes(self) -> list[np.ndarray]:
-        """Per direction, the candidate pairs as (P, 4) node numbers (slave, triangle): what
-        the Jacobian's sparsity pattern must hold."""
+        """Per direction, the candidate pairs that can be pressed before the next search
+        (:meth:`search`) as (P, 4) node numbers (slave, triangle): what the Jacobian's
+        sparsity pattern must hold."""
         out = []
-        for slaves, triangles in self.candidates:
-            out.append(np.column_stack([slaves, self.nodes.triangles[triangles]]))
+        for (slaves, triangles), reachable in zip(self.candidates, self._reachable):
+            out.append(np.column_stack([slaves[reachable],
+                                        self.nodes.triangles[triangles[reachable]]]))
         return out
 
     # --- forces -----------------------------------------------------------------------------
@@ -405,10 +438,18 @@ def _selector(node: int) -> np.ndarray:
 _E = [_selector(k) for k in range(4)]
 
 
+def _cross_rows(u, v):
+    """u x v over axis 1 (the components), broadcast over the others: np.cross's products,
+    without its copies."""
+    u0, u1, u2 = u[:, 0], u[:, 1], u[:, 2]
+    v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
+    return np.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], axis=1)
+
+
 def _cross(a, da, b, db):
     """a x b and its derivative, for a, b (P, 3) with derivatives (P, 3, 12)."""
-    return (np.cross(a, b),
-            np.cross(da, b[:, :, None], axis=1) + np.cross(a[:, :, None], db, axis=1))
+    return (_cross_rows(a, b),
+            _cross_rows(da, b[:, :, None]) + _cross_rows(a[:, :, None], db))
 
 
 def _dot(a, da, b, db):
