@@ -67,14 +67,21 @@ class ToolContact(PointContribution):
         #: (indices); None: one ply at z = 0, every tool touching every point
         self.heights = None
         self.touched = None
+        #: a stack: how high (mm) each moving tool starts above z = 0, the height of the ply it
+        #: comes down onto (the punch touches the top ply at t = 0, as it touches a blank)
+        self.start = {}
 
     def set_plies(self, point_plies: np.ndarray, heights, tool_plies: dict) -> None:
         """A stack: ``point_plies`` (P,) the ply of each point, ``heights`` the plies' heights
-        z_k (mm), ``tool_plies`` {tool name: the ply it touches}."""
+        z_k (mm), ``tool_plies`` {tool name: the ply it touches}. A moving tool (the punch)
+        starts at its ply's height: it travels the stroke from touching that ply, and a stack
+        ends with its bottom ply where one blank would."""
         point_plies = np.asarray(point_plies)
         self.heights = np.asarray(heights, dtype=float)[point_plies]
         self.touched = {name: np.flatnonzero(point_plies == tool_plies[name])
                         for name in self.surfaces}
+        self.start = {name: float(np.asarray(heights)[tool_plies[name]])
+                      for name in self.moving if name in tool_plies}
 
     def setup(self, reference_points):
         super().setup(reference_points)
@@ -87,7 +94,7 @@ class ToolContact(PointContribution):
 
     def set_load(self, t: float) -> None:
         for name in self.surfaces:
-            down = self.stroke * t if name in self.moving else 0.0
+            down = self.stroke * t - self.start.get(name, 0.0) if name in self.moving else 0.0
             if name == "holder" and self.holder_control is not None:
                 down += self.holder_control.lowering()
             self.offsets[name] = np.array([0.0, 0.0, -down])
