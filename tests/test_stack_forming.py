@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from conftest import CONFIGS
-from drape.errors import RunFailed as RunFailedError
 
 #: the small hemisphere (tests/test_blanks.py), the punch 3 mm down in 1 mm steps
 SMALL = ["tools.hemisphere.punch_radius=30", "tools.hemisphere.die_opening_radius=35",
@@ -250,43 +249,55 @@ def test_a_one_ply_stack_is_todays_job_bit_for_bit(one_ply_runs):
 
 def frictionless(root):
     """Two identical 0/90 plies with a frictionless interface under the holder's force F, and
-    one such ply alone under F / 2."""
+    one such ply alone under F / 2; the punch 1.2 mm down in 0.4 mm steps, the penalty
+    smoothed over g0 = 0.02 mm (FRICTIONLESS_SMOOTHING)."""
     from mpi4py import MPI
     path = root / "stack.toml"
     if MPI.COMM_WORLD.rank == 0:
         stack_job(root, [ply(), ply()], ["friction = 0.0"])
     MPI.COMM_WORLD.barrier()
-    short = ["process.stroke=1.2", "steps.minimum=0.02"]     # a stalled run stops soon
+    short = ["process.stroke=1.2", "steps.minimum=0.02",
+             f"contact.smoothing={FRICTIONLESS_SMOOTHING}"]
     single = form(CONFIGS / "hemisphere.toml", root / "one",
                   blank_job(root, ["process.holder_force=50", *short]))
     double = form(path, root / "two", short)
     return single, double
 
 
+#: g0 (mm) of the frictionless comparison: the smoothed penalty holds surfaces in contact up
+#: to g0 apart, and a stack has one contact more in series between punch and die than a ply
+#: alone, which shifts the plies' deflection by up to g0 (at the default 0.05 h = 0.3 mm,
+#: a quarter of the 1.2 mm stroke: the shear differed by 31 % of its peak)
+FRICTIONLESS_SMOOTHING = 0.02
+
+
 @pytest.mark.two_ranks
-@pytest.mark.xfail(strict=True, raises=RunFailedError,
-                   reason="Newton stalls on the frictionless interface: the steps shrink below "
-                          "steps.minimum at 0.6 mm (1.2 mm stroke in 0.4 mm steps) and 1.4 mm "
-                          "(3 mm in 1 mm steps), where the same stack with mu = 0.2 forms")
 def test_two_plies_on_a_frictionless_interface_form_like_one_ply_each(tmp_path):
     """Two identical plies that slide freely on each other: each is held by the friction of
     one tool face (the top ply by the holder's, mu F; the bottom one by the die's, mu F), as
     a ply alone under half the holder's force is by both (mu F/2 + mu F/2); the punch presses
     the top ply and the top ply the bottom one with normal forces only. So each ply's shear
-    field is the lone ply's, up to the stack's thickness (the bottom ply wraps a punch 0.3 mm
-    larger: 1 % of R 30 mm), the penalty's compliance and which ply the fillets' friction
-    acts on. Bound: 5 % of the peak shear; the two plies differ from each other by less."""
+    field is the lone ply's up to the penalty's tolerance and the stack's thickness. Bound:
+    5 % of the peak shear, from (1) the penalty: the extra contact in series shifts the
+    deflection w by up to g0, and the shear grows as w^2: 2 g0 / stroke = 3.3 %; (2) the
+    thickness: the bottom ply wraps a punch 0.3 mm larger, 1 % of R 30 mm; (3) the punch's
+    and the die fillet's friction act on one ply each instead of on the lone ply (not
+    bounded in closed form; the top ply, under the punch, differs most). Measured 2.1 %
+    (bottom) and 3.9 % (top) of the peak 0.061 deg; the punch force 0.559 N against twice
+    the lone ply's 0.275 N."""
     (_, one, p1), (_, two, p2) = frictionless(shared(tmp_path))
     alone = ply_points(p1)[0]
     plies = ply_points(p2)
     top = np.abs(alone[1]).max()
-    assert top > 0.05
+    assert top > 0.03
     for k in (0, 1):
         assert np.abs(plies[k][0] - alone[0]).max() < 1e-9
         assert np.abs(plies[k][1] - alone[1]).max() < 0.05 * top, k
+    punch = [s.rows[-1].columns["punch_force"] for s in (one, two)]
+    assert punch[1] == pytest.approx(2 * punch[0], rel=0.05)
     print(f"\nfrictionless interface: each ply against the lone ply within "
           f"{max(np.abs(plies[k][1] - alone[1]).max() for k in (0, 1)) / top:.3g} of the peak "
-          f"{top:.3g} deg")
+          f"{top:.3g} deg; punch force {punch[1]:.4g} N against 2 x {punch[0]:.4g} N")
 
 
 @pytest.fixture(scope="module")
