@@ -300,6 +300,53 @@ def test_two_plies_on_a_frictionless_interface_form_like_one_ply_each(tmp_path):
           f"{top:.3g} deg; punch force {punch[1]:.4g} N against 2 x {punch[0]:.4g} N")
 
 
+@pytest.mark.two_ranks
+def test_two_plies_with_a_high_friction_draw_in_as_one_ply_of_double_stiffness(tmp_path):
+    """Two identical plies on an interface of mu = 5 (they do not slide on each other: the
+    holder's pressure and the punch's give a friction limit far above the shear stress
+    between them) against one ply of double stiffness: the material's areal factor mu = 2
+    (tension and shear stress doubled: twice the thickness), the bending rigidity doubled,
+    under the same holder force F (the laminate and the ply are both held by mu F from the
+    holder and mu F from the die). Both with the stack's penalty (the ply's rule with the
+    material's mu = 1; the double ply's own would be twice as stiff) and g0 = 0.02 mm.
+
+    The draw-in of each ply at the mid-sides against the double ply's: within 5 %, from (1)
+    the penalty: the stack has one contact more in series between punch and die, which
+    shifts the deflection w by up to g0, and the draw-in grows as w^2: 2 g0 / stroke = 3.3 %;
+    (2) the thickness: the top ply is drawn over a punch 0.3 mm larger, 1 % of R 30 mm.
+    Measured 2.1 % (bottom) and 2.6 % (top) of 0.0169 mm. Identical plies hardly slide on
+    each other whatever mu: the frictionless stack above draws in the same to 5e-4, so this
+    checks the bonded stack's stiffness and holding, not the friction law."""
+    import re
+
+    from mpi4py import MPI
+    root = shared(tmp_path)
+    path, material = root / "stack.toml", root / "double.toml"
+    if MPI.COMM_WORLD.rank == 0:
+        stack_job(root, [ply(), ply()], ["friction = 5.0"])
+        text = (CONFIGS / "materials" / "paper_three_surface.toml").read_text()
+        material.write_text(re.sub(r"^mu = 1.0", "mu = 2.0", text, flags=re.M))
+    MPI.COMM_WORLD.barrier()
+    penalty = 0.01 * 10000.0 / 6.0 ** 2      # c K / h^2 of configs/hemisphere.toml, mu = 1
+    short = ["process.stroke=1.2", f"contact.smoothing={FRICTIONLESS_SMOOTHING}",
+             f"contact.penalty={penalty!r}"]
+    double = form(CONFIGS / "hemisphere.toml", root / "one",
+                  blank_job(root, [f'material="{material}"', "bending.rigidity=20", *short]))
+    form(path, root / "two", short)
+    if MPI.COMM_WORLD.rank != 0:
+        return
+    assert double[0].params.mu == 2.0
+    alone = json.loads((root / "one" / "summary.json").read_text())["draw_in_mm"]
+    plies = json.loads((root / "two" / "summary.json").read_text())["plies"]
+    sides = [key for key in alone if key.startswith("mid_")]
+    assert len(sides) == 4 and min(alone[key] for key in sides) > 0.01
+    worst = max(abs(p["draw_in_mm"][key] - alone[key]) / alone[key]
+                for p in plies for key in sides)
+    assert worst < 0.05
+    print(f"\nhigh friction: each ply's draw-in within {worst:.3g} of the double ply's "
+          f"{alone['mid_right']:.4g} mm")
+
+
 @pytest.fixture(scope="module")
 def two_plies(tmp_path_factory):
     """Two 0/90 plies ([0/90, 0/90]) with friction 0.2 everywhere: (job, summary, problem,
