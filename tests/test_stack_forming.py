@@ -208,6 +208,38 @@ def test_each_tool_touches_its_ply_at_its_height():
     assert np.isinf(gap[2:]).all() and (response.pressure[2:] == 0).all()
 
 
+def test_the_tools_see_every_ply_exposed_to_them():
+    """exposed_points on a 100 mm square bottom ply under a disc of radius 60 mm: a point of
+    the bottom ply is exposed from above (to the punch and the holder) where the disc does
+    not cover it, one of the disc exposed from below (to the die) past the square; the die
+    then pushes such a point of the top ply at the top ply's height."""
+    from drape.forming.plies import PlyConfig, exposed_points
+    from drape.forming.tool_contact import ToolContact
+    from drape.forming.tool_query import ContactQuery
+    square = PlyConfig(thickness=0.3, length=100.0, width=100.0).blank()
+    disc = PlyConfig(thickness=0.3, shape="disc", radius=60.0).blank()
+    xy = np.array([[40.0, 40.0], [45.0, 45.0], [55.0, 0.0], [0.0, 0.0]])
+    plies = np.array([0, 0, 1, 1])
+    # hypot(40, 40) = 56.6 < 60 (covered), hypot(45, 45) = 63.6 > 60; |55| > 50
+    from_above, from_below = exposed_points([square, disc], plies, xy)
+    assert from_above.tolist() == [False, True, True, True]
+    assert from_below.tolist() == [True, True, True, False]
+
+    class Plane:
+        def query(self, points, offset=None, cutoff=None):
+            gap = points[:, 2] - (0.0 if offset is None else offset[2])
+            normal = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+            return ContactQuery(gap, normal, points - gap[:, None] * normal)
+
+    contact = ToolContact({"die": Plane()}, set(), 0.0, penalty=10.0, friction=0.0,
+                          regularisation=0.01, cutoff=10.0)
+    contact.setup(xy)
+    contact.set_plies(plies, (0.0, 0.3), {"die": from_below})
+    positions = np.column_stack([xy, np.full(4, -0.32)])   # the top ply 0.02 into the die
+    f, _ = contact.evaluate(positions, positions * [0, 0, 1])
+    assert f[:, 2] == pytest.approx([3.2, 3.2, 0.2, 0.0])   # 10 N/mm^3 x the penetration
+
+
 # --- forming runs -------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -245,6 +277,42 @@ def test_a_one_ply_stack_is_todays_job_bit_for_bit(one_ply_runs):
         assert one.files == two.files
         for name in one.files:
             assert np.array_equal(one[name], two[name]), name
+
+
+@pytest.mark.two_ranks
+def test_the_die_holds_a_top_ply_that_reaches_past_the_bottom_one(tmp_path):
+    """A 140 mm square ply over a 100 mm one, the punch 0.2 mm down in one step: the die
+    touches the top ply where the bottom one does not cover it (before, the die saw the bottom
+    ply only and the top ply's overhang hung in the die's face); the overhang carries die
+    pressure and none of it lies below the die's face (it sags onto the die from the bottom
+    ply's height, held up by the smoothed penalty within g0 = 0.3 mm)."""
+    from mpi4py import MPI
+
+    from drape.forming.press import Forming
+    from drape.job import load_job
+    from drape.run import run_job
+    root = shared(tmp_path)
+    path = root / "stack.toml"
+    if MPI.COMM_WORLD.rank == 0:
+        stack_job(root, [ply(side=100.0), ply(side=140.0)])
+    MPI.COMM_WORLD.barrier()
+    job = load_job(path, overrides=SMALL + ["process.stroke=0.2", "steps.initial=1.0",
+                                            "steps.maximum=1.0"])
+    parts = {}
+    run_job(job, MPI.COMM_WORLD, output=str(root / "run"),
+            on_start=lambda run: parts.update(problem=run.problem,
+                                              forming=run.part(Forming)))
+    problem, forming = parts["problem"], parts["forming"]
+    xy = forming.tool_contact.reference_points
+    plies = np.repeat(problem.blank_mesh.cell_plies()[: problem.n_cells], forming.n_extra)
+    overhang = (plies == 1) & (np.abs(xy).max(axis=1) > 50.0)
+    gap, response = forming.tool_contact.last["die"]
+    comm = problem.comm
+    assert comm.allreduce(int(overhang.sum())) > 1000
+    assert comm.allreduce(bool(np.isfinite(gap[overhang]).all()), op=MPI.LAND)
+    assert comm.allreduce(float(response.pressure[overhang].max(initial=0.0)),
+                          op=MPI.MAX) > 1e-4
+    assert comm.allreduce(float(gap[overhang].min(initial=np.inf)), op=MPI.MIN) > 0.0
 
 
 def frictionless(root):
