@@ -118,6 +118,13 @@ class StackProblem(MembraneProblem):
         self.ply_contact.commit()
         self.begin_step()
 
+    def restore(self) -> None:
+        """Back to the committed step after a failed attempt: the next attempt pairs the
+        slave nodes afresh, as this one did."""
+        super().restore()
+        self.ply_contact.reset_pairing()
+        self._forces_at = None
+
     def _ensure_forces(self):
         from mpi4py import MPI
         changed = self._forces_at is None or not np.array_equal(self._forces_at, self.u.x.array)
@@ -169,6 +176,8 @@ class StackProblem(MembraneProblem):
         if A.getAttr("drape_pattern") != self._pattern_version:
             self._remake_pattern(snes, A)
         super().jacobian(snes, x, A, P)
+        if snes is not None:
+            self._repair(snes, x)
         forces = self._ensure_forces()
         start = time.perf_counter()
         constrained = self._constrained()
@@ -185,6 +194,23 @@ class StackProblem(MembraneProblem):
                               addv=PETSc.InsertMode.ADD, rowmap=rows)
         A.assemble()
         self.timings["ply_assembly"] += time.perf_counter() - start
+
+    def _repair(self, snes, x) -> None:
+        """A new Newton iteration: slave nodes that left their triangles are paired again
+        (PlyContact.repair; collective) and the residual SNES holds for this iterate is made
+        again with the new pairs, so that Newton's step solves for it; kept only if its norm
+        is no larger than the one SNES's line search will compare with (it cannot be told a
+        new one), else the pairs stay as they were."""
+        from mpi4py import MPI
+        if not self.comm.allreduce(self.ply_contact.repair(self.gather(self.u)), op=MPI.LOR):
+            return
+        residual = snes.getFunction()[0]
+        self._forces_at = None
+        self.residual(snes, x, residual)
+        if residual.norm() > snes.getFunctionNorm():
+            self.ply_contact.undo_repair()
+            self._forces_at = None
+            self.residual(snes, x, residual)
 
     def create_matrix(self, mat_type: str | None = None):
         """The form's matrix (DOLFINx's layout and local-to-global map) with its sparsity

@@ -45,6 +45,13 @@ from drape.forming.surfaces import closest_point_on_triangles
 #: edge) loses its contact smoothly: its weight falls from 1 at the triangle's edge to 0 at
 #: this far outside it, in barycentric coordinates (a C1 ramp, so that Newton sees no jump)
 EDGE_RAMP = 0.1
+#: a slave keeps its master triangle from one Newton iteration to the next while its
+#: projection lies within this far outside it (barycentric coordinates) across an inner edge
+#: (:meth:`PlyContact.repair`): the closest triangle of a node over a shared vertex or edge
+#: (identical plies put every node over a vertex) changes with the slightest sliding, the
+#: triangles' normals differ, and a residual jumping with the choice stalls Newton on a
+#: frictionless interface, where nothing holds the node in place
+PAIRING_HYSTERESIS = 1e-3
 #: default search margin (mm): how far nodes may move between searches
 DEFAULT_MARGIN = 0.5
 #: master triangles whose distance to a slave node is within this of the closest one's (mm)
@@ -163,6 +170,25 @@ class PlyContact:
         self.candidates = [None] * len(self.directions)
         self._tie_rank = _reference_order(nodes)
         self._reachable = [None] * len(self.directions)
+        #: per master triangle, which of its edges (the one opposite each vertex) and which
+        #: of its vertices lie on its ply's outline: only past those does a slave lose
+        #: contact (the edge ramp)
+        self.outline_edges, self.outline_vertices = _outline(nodes.triangles,
+                                                             nodes.triangle_ply)
+        #: per ply, the width (mm) over which a slave past its outline loses contact:
+        #: EDGE_RAMP times its element size, sqrt(2 x its triangles' mean reference area)
+        corners = nodes.reference[nodes.triangles][:, :, :2]
+        e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+        area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+        plies = int(nodes.ply.max(initial=0)) + 1
+        mean = np.bincount(nodes.triangle_ply, area, plies) / np.maximum(
+            np.bincount(nodes.triangle_ply, minlength=plies), 1)
+        self.ramp_width = EDGE_RAMP * np.sqrt(2.0 * mean)
+        #: per direction, each slave's master triangle (-1: none yet), kept through the
+        #: residuals of a Newton iteration (its line search too) and changed only by
+        #: :meth:`repair`, so that the residual Newton sees within an iteration is smooth;
+        #: forgotten at commit, so that a step's attempt pairs from its start
+        self.paired = [np.full(n, -1, dtype=np.int64) for _ in self.directions]
         self.searched_at = None
         self.counts = {"searches": 0, "pairs": 0}
 
@@ -285,13 +311,70 @@ class PlyContact:
         chosen = order[first]
         return slaves[chosen], triangles[chosen]
 
+    def _paired(self, i, x):
+        """Per slave with candidates, its master triangle: the one it is paired with while it
+        is a candidate, else (and paired so from now on) the closest."""
+        slaves, closest = self._closest(i, x)
+        paired = self.paired[i][slaves]
+        keep = (paired >= 0) & self._is_candidate(i, slaves, paired)
+        chosen = np.where(keep, paired, closest)
+        self.paired[i][slaves] = chosen
+        return slaves, chosen
+
+    def _is_candidate(self, i, slaves, triangles) -> np.ndarray:
+        """Whether each (slave, triangle) is among direction i's candidate pairs."""
+        pair_slaves, pair_triangles = self.candidates[i]
+        if not len(pair_slaves):
+            return np.zeros(len(slaves), dtype=bool)
+        width = np.int64(len(self.nodes.triangles) + 1)
+        known = np.sort(pair_slaves * width + pair_triangles)
+        wanted = slaves * width + np.maximum(triangles, 0)
+        at = np.minimum(np.searchsorted(known, wanted), len(known) - 1)
+        return known[at] == wanted
+
+    def repair(self, u: np.ndarray) -> bool:
+        """Between Newton iterations (at displacements u (N, 3)): pair a slave with its
+        closest triangle where its projection has left its triangle by more than
+        PAIRING_HYSTERESIS across an inner edge (past the outline the edge ramp takes it out
+        of contact); whether any pair changed (this rank's slaves)."""
+        self._ensure_candidates(u)
+        x = self.nodes.reference + u
+        self._before_repair = [paired.copy() for paired in self.paired]
+        changed = False
+        for i in range(len(self.directions)):
+            slaves, closest = self._closest(i, x)
+            paired = self.paired[i][slaves]
+            known = np.flatnonzero(paired >= 0)
+            tri = self.nodes.triangles[paired[known]]
+            lam = _barycentric(x[slaves[known]], x[tri[:, 0]], x[tri[:, 1]], x[tri[:, 2]])
+            left = np.any((lam < -PAIRING_HYSTERESIS) & ~self.outline_edges[paired[known]],
+                          axis=1)
+            move = np.zeros(len(slaves), dtype=bool)
+            move[known[left]] = True
+            move &= closest != paired
+            changed |= bool(move.any())
+            self.paired[i][slaves[move]] = closest[move]
+        return changed
+
+    def undo_repair(self) -> None:
+        """The pairs as they were before the last :meth:`repair`."""
+        self.paired = [paired.copy() for paired in self._before_repair]
+
+    def reset_pairing(self) -> None:
+        """Forget the pairs' triangles: the next evaluation pairs every slave with its closest
+        (after a commit, and when an attempt is given up)."""
+        for paired in self.paired:
+            paired[:] = -1
+
     def _direction_forces(self, i, direction, x, du) -> PairForces:
-        slaves, triangles = self._closest(i, x)
+        slaves, triangles = self._paired(i, x)
         nodes = np.column_stack([slaves, self.nodes.triangles[triangles]]).astype(np.int64)
         memory = self.memory[i][slaves]
         geometry = _pair_geometry(x[nodes], du[nodes], direction.sign, direction.offset, memory)
         g, dg, n, dn, lam, dlam, ds, dds = geometry
-        ramp, d_ramp = _edge_ramp(lam, dlam)
+        ramp, d_ramp = _edge_ramp(x[nodes], n, dn, self.outline_edges[triangles],
+                                  self.outline_vertices[triangles],
+                                  self.ramp_width[direction.master])
         active = ramp > 0.0
         p, stiffness = normal_pressure(g, self.penalty, self.smoothing)
         # the slip rate v = |(I - n n)(ds - m)| / dt and its derivative
@@ -354,6 +437,7 @@ class PlyContact:
                 memory[trial["slaves"]] = elastic_slip(trial["slip"], trial["normal"],
                                                        trial["pressure"], self.regularisation)
             self.memory[i] = memory
+        self.reset_pairing()
 
     def state(self) -> dict:
         """Friction's memory (the elastic slip per direction, (N, 3) each) for a checkpoint."""
@@ -414,16 +498,94 @@ def _reference_order(nodes: StackNodes) -> np.ndarray:
     return rank
 
 
-def _edge_ramp(lam, dlam):
-    """The weight of each pair (P,) by how far its projection lies outside the triangle (the
-    smallest barycentric coordinate l: 1 for l >= 0, 0 for l <= -EDGE_RAMP, 3 s^2 - 2 s^3 with
-    s = 1 + l / EDGE_RAMP between) and its derivative (P, 12)."""
-    smallest = np.argmin(lam, axis=1)
-    rows = np.arange(len(lam))
-    s = np.clip(1.0 + lam[rows, smallest] / EDGE_RAMP, 0.0, 1.0)
-    ramp = s * s * (3.0 - 2.0 * s)
-    slope = 6.0 * s * (1.0 - s) / EDGE_RAMP
-    return ramp, slope[:, None] * dlam[rows, smallest]
+def _edge_ramp(x, n, dn, outline_edges, outline_vertices, width):
+    """The weight of each of P pairs (x (P, 4, 3): slave, a, b, c; n, dn the triangle's normal
+    and its derivative) by how far the slave lies past the master ply's outline, and its
+    derivative (P, 12). d is the distance, in the triangle's plane, from the slave to the
+    triangle's closest point c when c lies on an edge of the outline (``outline_edges``
+    (P, 3): the edge opposite each vertex is one) or at a vertex of it (``outline_vertices``
+    (P, 3)), else 0; the weight is 1 for d = 0, 0 for d >= ``width`` (mm) and 3 s^2 - 2 s^3,
+    s = 1 - d / width, between: a C1 ramp, so that a node crossing a ply's edge makes no jump.
+
+    d is the same whichever triangle next to the outline is the closest (they share the
+    closest point), so the weight does not jump when that choice changes under a sliding
+    node. Inner edges do not count: where the master ply folds convexly the closest point of
+    a slave lies on an inner edge, just outside the plane's projection, which would cut the
+    weight (and jump with the choice of triangle; a frictionless interface stalled so)."""
+    count = len(x)
+    ramp, d_ramp = np.ones(count), np.zeros((count, 12))
+    if not count:
+        return ramp, d_ramp
+    xs, corners = x[:, 0], x[:, 1:]
+    _, bary, _ = closest_point_on_triangles(xs, corners[:, 0], corners[:, 1], corners[:, 2])
+    zeros = bary == 0.0
+    on_vertex = zeros.sum(axis=1) == 2
+    on_edge = zeros.sum(axis=1) == 1
+    vertex = np.argmax(bary, axis=1)
+    edge = np.argmax(zeros, axis=1)
+    rows = np.arange(count)
+    outside = ((on_vertex & outline_vertices[rows, vertex])
+               | (on_edge & outline_edges[rows, edge]))
+    if not outside.any():
+        return ramp, d_ramp
+    rows = np.flatnonzero(outside)
+    # the closest point c and its derivative: a vertex, or the foot on the edge (i, j)
+    c = np.einsum("pk,pki->pi", bary[rows], corners[rows])
+    dc = np.einsum("pk,kij->pij", bary[rows], np.stack(_E[1:]))
+    along = rows[on_edge[rows]]
+    if len(along):
+        k = edge[along]
+        i, j = (k + 1) % 3, (k + 2) % 3
+        xi, xj = corners[along, i], corners[along, j]
+        e, r = xj - xi, xs[along] - xi
+        ee = np.sum(e * e, axis=1)
+        tau = np.sum(r * e, axis=1) / ee
+        Ei = np.stack(_E[1:])[i]
+        Ej = np.stack(_E[1:])[j]
+        de, dr = Ej - Ei, _E[0] - Ei
+        dtau = ((np.einsum("pik,pi->pk", dr, e) + np.einsum("pi,pik->pk", r, de)) / ee[:, None]
+                - 2.0 * tau[:, None] * np.einsum("pi,pik->pk", e, de) / ee[:, None])
+        where = np.searchsorted(rows, along)
+        dc[where] = Ei + e[:, :, None] * dtau[:, None, :] + tau[:, None, None] * de
+    r = xs[rows] - c
+    dr = _E[0] - dc
+    nr, dnr = n[rows], dn[rows]
+    height = np.sum(r * nr, axis=1)
+    dheight = np.einsum("pik,pi->pk", dr, nr) + np.einsum("pi,pik->pk", r, dnr)
+    q = r - height[:, None] * nr
+    dq = dr - nr[:, :, None] * dheight[:, None, :] - height[:, None, None] * dnr
+    d = np.linalg.norm(q, axis=1)
+    dd = np.einsum("pi,pik->pk", q / np.where(d > 0.0, d, 1.0)[:, None], dq)
+    s = np.clip(1.0 - d / width, 0.0, 1.0)
+    ramp[rows] = s * s * (3.0 - 2.0 * s)
+    d_ramp[rows] = -(6.0 * s * (1.0 - s) / width)[:, None] * dd
+    return ramp, d_ramp
+
+
+def _barycentric(x, a, b, c) -> np.ndarray:
+    """The barycentric coordinates (P, 3) of the points x's projections on the planes of the
+    triangles (a, b, c) (each (P, 3)), as :func:`_pair_geometry` has them."""
+    e1, e2, r = b - a, c - a, x - a
+    normal = np.cross(e1, e2)
+    nn = np.sum(normal * normal, axis=1)
+    lb = np.sum(np.cross(r, e2) * normal, axis=1) / nn
+    lc = np.sum(np.cross(e1, r) * normal, axis=1) / nn
+    return np.column_stack([1.0 - lb - lc, lb, lc])
+
+
+def _outline(triangles: np.ndarray, triangle_ply: np.ndarray):
+    """Per triangle (T, 3 each): whether the edge opposite each vertex lies on its ply's
+    outline (no other triangle of the ply shares it), and whether each vertex does."""
+    if not len(triangles):
+        return np.zeros((0, 3), dtype=bool), np.zeros((0, 3), dtype=bool)
+    opposite = [(1, 2), (2, 0), (0, 1)]
+    edges = np.stack([np.sort(triangles[:, list(e)], axis=1) for e in opposite], axis=1)
+    keys = np.column_stack([np.repeat(triangle_ply, 3), edges.reshape(-1, 2)])
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    outline = (counts[inverse.ravel()] == 1).reshape(-1, 3)
+    on_outline = np.zeros(int(triangles.max()) + 1, dtype=bool)
+    on_outline[edges[outline].ravel()] = True
+    return outline, on_outline[triangles]
 
 
 # --- forward-mode derivatives of a pair's geometry ----------------------------------------------

@@ -180,15 +180,23 @@ class Forming(JobPart):
             self.tool_contact.holder_control = self.holder
 
     def _bind_plies(self, problem):
-        """A stack: the die touches the bottom ply, the punch and the holder the top one (they
-        come down onto it), each ply seen at its height. Returns the top ply, its height (mm)
-        and each contact point's ply (None, 0.0, None for one blank)."""
+        """A stack: the die touches every ply where no ply below covers it (the bottom ply,
+        and an upper ply where it reaches past those below), the punch and the holder every
+        ply where no ply above covers it (the top ply, and a lower one past a partial top
+        ply), each ply seen at its height (:func:`drape.forming.plies.exposed_points`, on
+        the reference outlines). Returns the top ply, its height (mm) and each contact
+        point's ply (None, 0.0, None for one blank)."""
+        from drape.forming.plies import exposed_points
         mesh = problem.blank_mesh
         if getattr(mesh, "n_plies", 1) < 2:
             return None, 0.0, None
         top = mesh.n_plies - 1
         point_plies = np.repeat(mesh.cell_plies()[: problem.n_cells], self.n_extra)
-        touches = {name: 0 if name == "die" else top for name in self.tool_contact.surfaces}
+        from_above, from_below = exposed_points([ply.blank() for ply in self.stack.plies],
+                                                point_plies,
+                                                self.tool_contact.reference_points)
+        touches = {name: from_below if name == "die" else from_above
+                   for name in self.tool_contact.surfaces}
         self.tool_contact.set_plies(point_plies, mesh.heights, touches)
         return top, float(mesh.heights[top]), point_plies
 

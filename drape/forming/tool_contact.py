@@ -67,14 +67,25 @@ class ToolContact(PointContribution):
         #: (indices); None: one ply at z = 0, every tool touching every point
         self.heights = None
         self.touched = None
+        #: a stack: how high (mm) each moving tool starts above z = 0, the height of the ply it
+        #: comes down onto (the punch touches the top ply at t = 0, as it touches a blank)
+        self.start = {}
 
     def set_plies(self, point_plies: np.ndarray, heights, tool_plies: dict) -> None:
         """A stack: ``point_plies`` (P,) the ply of each point, ``heights`` the plies' heights
-        z_k (mm), ``tool_plies`` {tool name: the ply it touches}."""
+        z_k (mm), ``tool_plies`` {tool name: the ply it touches, or a mask (P,) of the points
+        it touches (those of every ply exposed to it)}. A moving tool (the punch) starts at
+        the height of the highest ply it touches: it travels the stroke from touching that
+        ply, and a stack ends with its bottom ply where one blank would."""
         point_plies = np.asarray(point_plies)
-        self.heights = np.asarray(heights, dtype=float)[point_plies]
-        self.touched = {name: np.flatnonzero(point_plies == tool_plies[name])
-                        for name in self.surfaces}
+        heights = np.asarray(heights, dtype=float)
+        self.heights = heights[point_plies]
+        masks = {name: (point_plies == which if np.ndim(which) == 0
+                        else np.asarray(which, dtype=bool))
+                 for name, which in tool_plies.items()}
+        self.touched = {name: np.flatnonzero(masks[name]) for name in self.surfaces}
+        self.start = {name: float(heights[np.unique(point_plies[masks[name]])].max(
+            initial=0.0)) for name in self.moving if name in masks}
 
     def setup(self, reference_points):
         super().setup(reference_points)
@@ -87,7 +98,7 @@ class ToolContact(PointContribution):
 
     def set_load(self, t: float) -> None:
         for name in self.surfaces:
-            down = self.stroke * t if name in self.moving else 0.0
+            down = self.stroke * t - self.start.get(name, 0.0) if name in self.moving else 0.0
             if name == "holder" and self.holder_control is not None:
                 down += self.holder_control.lowering()
             self.offsets[name] = np.array([0.0, 0.0, -down])
