@@ -11,7 +11,7 @@ Tests marked ``full_stroke`` (the shipped double domes pressed to their full 58 
 each) are part of the suite: the shipped tools allow no coarser mesh (two elements over the
 10 mm fillets: 7.85 mm at most), so they cannot be made cheaper without becoming another job,
 and what they check (the full stroke, the inertia's share, the kinematic peak) is not seen 3 mm
-down. They are also marked ``serial``: one rank each, since two ranks factor these 6 000
+down. They are also marked ``serial``: one rank each, since two ranks factor these 6 200
 unknowns hardly faster than one and cost more processor time in all (docs/fe-results.md,
 "The suite's time"). DRAPE_FULL_STROKE=0 leaves them out, for a quicker loop while working.
 
