@@ -5,9 +5,9 @@
 # the serial pass and run in this one, on both cores: tests/conftest.py). The serial pass runs
 # its tests on two pytest-xdist workers, one per core (tests sharing a module or session fixture
 # on the same one: tests/conftest.py). Extra arguments go to pytest (both passes).
-# DRAPE_FULL_STROKE=0 leaves out the shipped double domes pressed to their full 58 mm (3.5 and
-# 6 minutes on 2 ranks; the shipped tools allow no coarser mesh), for a quicker loop while
-# working; CI and the README's command run them.
+# DRAPE_FULL_STROKE=0 leaves out the shipped double domes pressed to their full 58 mm (minutes
+# each, on one rank each, first in the serial pass; the shipped tools allow no coarser mesh),
+# for a quicker loop while working; CI and the README's command run them.
 set -euo pipefail
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 "$repo/scripts/install.sh"

@@ -7,17 +7,19 @@ seconds or minutes whose checks do not depend on the number of ranks; that 1 ran
 2 give is tests/test_fe_cli.py's) run in the 2-rank pass, where they use both cores, and are
 skipped in the serial pass when DRAPE_TWO_RANK_PASS=1 says that a 2-rank pass follows (as
 scripts/run-tests.sh does); run alone, e.g. `pytest tests/test_forming.py`, they run serially.
-Tests marked ``full_stroke`` (the shipped double domes pressed to their full 58 mm, 3.5 and 6
-minutes on 2 ranks) are part of the suite: the shipped tools allow no coarser mesh (two
-elements over the 10 mm fillets: 7.85 mm at most), so they cannot be made cheaper without
-becoming another job, and what they check (the full stroke, the inertia's share, the kinematic
-peak) is not seen 3 mm down. DRAPE_FULL_STROKE=0 leaves them out, for a quicker loop while
-working.
+Tests marked ``full_stroke`` (the shipped double domes pressed to their full 58 mm, minutes
+each) are part of the suite: the shipped tools allow no coarser mesh (two elements over the
+10 mm fillets: 7.85 mm at most), so they cannot be made cheaper without becoming another job,
+and what they check (the full stroke, the inertia's share, the kinematic peak) is not seen 3 mm
+down. They are also marked ``serial``: one rank each, since two ranks factor these 6 200
+unknowns hardly faster than one and cost more processor time in all (docs/fe-results.md,
+"The suite's time"). DRAPE_FULL_STROKE=0 leaves them out, for a quicker loop while working.
 
 The serial pass runs on two pytest-xdist workers (``-n 2 --dist loadgroup``,
 scripts/run-tests.sh). A module- or session-scoped fixture is made once per worker that uses it,
 so the tests that share one are kept on one worker (an ``xdist_group``); the others are dealt out
-one by one.
+one by one. The full strokes come first, so that the two workers start one each at once and the
+other tests fill in beside them.
 """
 
 import os
@@ -78,6 +80,9 @@ def group_shared_fixtures(items) -> None:
 
 @pytest.hookimpl(tryfirst=True)   # before pytest-xdist reads the groups
 def pytest_collection_modifyitems(config, items):
+    # the full strokes first: the serial pass's two workers take one each at once and run
+    # them side by side while the other tests fill in around the shorter one
+    items.sort(key=lambda item: "full_stroke" not in item.keywords)
     if os.environ.get("DRAPE_FULL_STROKE") == "0":
         skip = pytest.mark.skip(reason="a shipped job to full stroke (minutes), left out by "
                                 "DRAPE_FULL_STROKE=0")
