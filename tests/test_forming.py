@@ -73,7 +73,7 @@ def converged(tmp_path_factory):
 
 
 def check_jacobian(record, p, found):
-    """At the last step (t = 1), half a step on from the committed state (Newton's ground):
+    """At the last step (t = 1), half a step back from the committed state (every tool pressing):
     found[direction] = (|J d|, |J d| without the tools' stiffness, |FD - J d|) (inf-norms)
     for d = the step's increment, the whole blank 1 mm down and 1 mm along x. The problem is
     left at its committed state, as the step ended."""
@@ -83,10 +83,17 @@ def check_jacobian(record, p, found):
     increment = p.u_committed.vector.copy()
     increment.axpy(-1.0, p.u_previous.vector)
     x = p.u_committed.vector.copy()
-    x.axpy(0.5, increment)           # a trial state half a step on: Newton's ground
+    # half a step back: the tools at t = 1 and the blank behind them, the punch pressing it
+    # (half a step on, the blank runs ahead of the punch and leaves it: no punch tangent)
+    x.axpy(-0.5, increment)
     jacobians = []                   # J at x, and J without the tools' stiffness
     for without_tools in (False, True):
         residual(p, x)               # the law's and the tools' state at x
+        if not without_tools:        # the points each tool presses at x (all ranks)
+            found["pressed"] = {name: p.comm.allreduce(int(np.count_nonzero(response.pressure)))
+                                for term in p.point_terms.entries
+                                for name, (_, response) in getattr(term.contribution, "last",
+                                                                   {}).items()}
         if without_tools:
             for term in p.point_terms.entries:
                 term.stiffness.x.array[:] = 0.0
@@ -146,29 +153,34 @@ def test_outputs_of_a_forming_run(hemisphere):
 
 @pytest.mark.two_ranks
 def test_the_forming_jacobian_is_the_derivative_of_the_residual(converged):
-    """At the last step of a 5 mm run of the scaled-down hemisphere (punch, die and holder in
-    contact; the converged run, whose consistent tangent is used everywhere: the shipped band,
-    Newton's tangent stiffened near neutral loading, is by design not the residual's derivative
-    there), half a step on (Newton's ground), the assembled Jacobian's action J d against central
+    """At the last step of a 5 mm run of the scaled-down hemisphere (the converged run, whose
+    consistent tangent is used everywhere: the shipped band, Newton's tangent stiffened near
+    neutral loading, is by design not the residual's derivative there), half a step back, where
+    punch, die and holder all press the blank (counted: half a step on, the blank has left the
+    punch and its tangent went unchecked), the assembled Jacobian's action J d against central
     differences of the residual, in three directions d (check_jacobian):
 
     - the step's increment (the membrane, the law, the hinges and the tools together): within
-      5e-4 of |J d|;
+      5e-4 of |J d| (measured 1.4e-4);
     - the whole blank moved 1 mm down: the membrane's and the hinges' part of J d vanishes (a
-      rigid translation strains nothing), so J d is the tools' stiffness alone, and it must be
-      the differences' to 1e-4;
-    - the whole blank moved 1 mm along x: within 2e-2. This is what the contact tangent leaves
-      out, the turning of the tool's normal (p dn/du, drape/forming/contact.py,
+      rigid translation strains nothing), so J d is the tools' stiffness alone: within 1e-3
+      (measured 1.4e-4; exact on the flat die and holder, the rest is the punch's normal
+      turning, below);
+    - the whole blank moved 1 mm along x: within 2e-2 (measured 8e-4). This is what the contact
+      tangent leaves out, the turning of the tool's normal (p dn/du, drape/forming/contact.py,
       docs/benchmarks.md)."""
     _, _, found = converged
+    pressed = found.pop("pressed")
+    print(f"\npoints pressed by each tool at the checked state: {pressed}")
     assert set(found) == {"increment", "down", "along x"}
+    assert min(pressed.values()) > 0, pressed       # every tool's tangent is in the check
     for name, (size, bare, error) in found.items():
         print(f"\n{name}: |J d| = {size:.4g}, without the tools {bare:.3g}, "
               f"|FD - J d| = {error:.3g}")
     size, _, error = found["increment"]
     assert error <= 5e-4 * size
     size, bare, error = found["down"]
-    assert size > 1.0 and bare <= 1e-9 * size and error <= 1e-4 * size
+    assert size > 1.0 and bare <= 1e-9 * size and error <= 1e-3 * size
     size, bare, error = found["along x"]
     assert size > 0.1 and bare <= 1e-9 * size and error <= 2e-2 * size
 

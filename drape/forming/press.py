@@ -226,7 +226,11 @@ class Forming(JobPart):
             time = self.process.punch_time
             plies.set_step_duration(time(self.stroke * t) - time(self.stroke * t1))
         moving = t0 is not None and t1 > t0
-        if moving:
+        # a stack's first step lifts each ply onto the smoothed penalties below it; carried on,
+        # that lift parts the plies, leaves Newton a singular first matrix and the run to
+        # round-off (different on 1 and 2 ranks): the step after it starts from where it ended
+        settled = plies is not None and t0 == 0.0
+        if moving and not settled:
             u1, u0 = p.u_committed.x.array, p.u_previous.x.array
             p.set_initial_guess(u1 + (t - t1) / (t1 - t0) * (u1 - u0))
         if not p.inertial:
