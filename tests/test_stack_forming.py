@@ -510,8 +510,8 @@ def test_a_0_90_stack_keeps_the_hemispheres_square_symmetry(two_plies):
 def test_one_rank_equals_two_ranks(two_plies, tmp_path):
     """The stack run on COMM_SELF (rank 0) against the same run on 2 ranks: the same steps
     and points; punch and holder forces and each ply's shear field to round-off, as a single
-    ply (tests/test_fe_cli.py): 1e-8 relative (measured 2e-14 and 8e-14). Before the second
-    step started from the first step's plies (Forming.predict) and master-triangle ties were
+    ply (tests/test_fe_cli.py): 1e-8 relative (measured 2e-14 and 6e-14). Before the second
+    step carried on only the first's downward motion (Forming.predict) and master-triangle ties were
     decided by reference order (PlyContact._closest), round-off picked Newton's path and they
     differed by 2e-3 and 1e-2."""
     from mpi4py import MPI

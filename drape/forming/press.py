@@ -226,13 +226,16 @@ class Forming(JobPart):
             time = self.process.punch_time
             plies.set_step_duration(time(self.stroke * t) - time(self.stroke * t1))
         moving = t0 is not None and t1 > t0
-        # a stack's first step lifts each ply onto the smoothed penalties below it; carried on,
-        # that lift parts the plies, leaves Newton a singular first matrix and the run to
-        # round-off (different on 1 and 2 ranks): the step after it starts from where it ended
-        settled = plies is not None and t0 == 0.0
-        if moving and not settled:
+        if moving:
             u1, u0 = p.u_committed.x.array, p.u_previous.x.array
-            p.set_initial_guess(u1 + (t - t1) / (t1 - t0) * (u1 - u0))
+            increment = (t - t1) / (t1 - t0) * (u1 - u0)
+            if plies is not None and t0 == 0.0:
+                # a stack's first step also lifts each ply onto the smoothed penalties below
+                # it; carried on, that lift parts the plies, leaves Newton a singular first
+                # matrix and the run to round-off (different on 1 and 2 ranks): the step after
+                # it carries on the tools' downward motion only
+                increment[2::3] = np.minimum(increment[2::3], 0.0)
+            p.set_initial_guess(u1 + increment)
         if not p.inertial:
             return
         from_rest = not moving or t0 == 0.0
