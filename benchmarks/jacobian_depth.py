@@ -20,8 +20,14 @@ points of each tool stick and slip.
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 import numpy as np
+
+# the tests' residual and central differences (one implementation of each)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from fe_helpers import central_difference, residual  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -32,8 +38,9 @@ def main(argv=None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--beyond", type=float, default=0.5, metavar="S",
                         help="check at the committed state plus S times the last increment "
-                        "(0.5: the test's ground; beyond the converged state the blank has "
-                        "moved down past the punch, and leaves it)")
+                        "(beyond the converged state the blank has moved down past the punch, "
+                        "and leaves it; tests/test_forming.py checks at -0.5, every tool "
+                        "pressing)")
     args = parser.parse_args(argv)
 
     from petsc4py import PETSc
@@ -44,11 +51,6 @@ def main(argv=None) -> int:
 
     parts = {}
 
-    def residual(problem, x):
-        b = problem.create_vector()
-        problem.residual(None, x, b)
-        return b
-
     def check(record, p):
         if record.t < 1.0 - 1e-12:
             return
@@ -56,7 +58,7 @@ def main(argv=None) -> int:
         increment.axpy(-1.0, p.u_previous.vector)
         x = p.u_committed.vector.copy()
         x.axpy(args.beyond, increment)
-        residual(p, x)
+        residual(p, x)       # the law's and the tools' state at x: the counts and J below
         A = p.create_matrix()
         p.jacobian(None, x, A, A)
         plastic = int(np.sum(p.response.active_surface >= 0))
@@ -70,16 +72,10 @@ def main(argv=None) -> int:
         for name, step in (("down", [0.0, 0.0, -1.0]), ("along x", [1.0, 0.0, 0.0])):
             directions[name] = x.duplicate()
             directions[name].array[:] = np.tile(step, x.array.size // 3)
-        eps = 1e-6
         for name, d in directions.items():
             Jd = A.createVecLeft()
             A.mult(d, Jd)
-            plus, minus = x.copy(), x.copy()
-            plus.axpy(eps, d)
-            minus.axpy(-eps, d)
-            fd = residual(p, plus)
-            fd.axpy(-1.0, residual(p, minus))
-            fd.scale(1.0 / (2 * eps))
+            fd = central_difference(p, x, d)
             fd.axpy(-1.0, Jd)
             size, error = Jd.norm(PETSc.NormType.INFINITY), fd.norm(PETSc.NormType.INFINITY)
             print(f"  d = {name:9s} |J d| = {size:.4g}  |FD - J d| = {error:.3g}  "
