@@ -54,17 +54,13 @@ SHORT_OVERRIDES = {
 #: shipped configs whose short version does not run yet (an expected failure, strict: the test
 #: says when it starts to work)
 KNOWN_FAILING: dict[str, str] = {
-    "hemisphere_2ply.toml": "1 and 2 ranks take the same steps; u agrees to 3e-8 mm out of "
-                            "the plane but by up to 1.1e-5 mm in it (docs/plies-forming.md, "
-                            "'What is left')",
     "double_dome_4ply.toml": "1 and 2 ranks take the same steps and agree to 1e-7 mm in most "
                              "of u, but by up to 3.5e-4 mm in places (docs/plies-forming.md, "
                              "'What is left')"}
 #: known failing configs whose failing run is too long to repeat in every suite (name -> why):
-#: skipped; the cheaper stack above says when stacks start to pass
+#: skipped
 SKIPPED_WHILE_FAILING: dict[str, str] = {
-    "double_dome_4ply.toml": "a known failure (KNOWN_FAILING) whose short run takes 150-280 s; "
-                             "hemisphere_2ply.toml's strict xfail says when stacks pass"}
+    "double_dome_4ply.toml": "a known failure (KNOWN_FAILING) whose short run takes 150-280 s"}
 #: top-level configs/*.toml files that are not `drape run` jobs (name -> why); materials and
 #: tools live in configs/materials and configs/tools
 NOT_JOBS: dict[str, str] = {}
