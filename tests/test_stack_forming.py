@@ -197,7 +197,8 @@ def test_each_tool_touches_its_ply_at_its_height():
                           penalty=10.0, friction=0.0, regularisation=0.01, cutoff=10.0)
     xy = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0], [1.0, 0.0]])
     contact.setup(xy)
-    contact.set_plies(np.array([0, 0, 1, 1]), (0.0, 0.3), {"die": 0, "holder": 1})
+    plies = np.array([0, 0, 1, 1])
+    contact.set_plies(plies, (0.0, 0.3), {"die": plies == 0, "holder": plies == 1})
     contact.offsets["holder"] = np.array([0.0, 0.0, 0.27])      # 0.01 into the top ply
     positions = np.column_stack([xy, np.full(4, -0.02)])             # 0.02 into the die
     f, _ = contact.evaluate(positions, positions * [0, 0, 1])

@@ -530,8 +530,9 @@ def _edge_ramp(x, n, dn, outline_edges, outline_vertices, width):
         return ramp, d_ramp
     rows = np.flatnonzero(outside)
     # the closest point c and its derivative: a vertex, or the foot on the edge (i, j)
+    corner_selectors = np.stack(_E[1:])                     # (3, 3, 12): d corner / d x
     c = np.einsum("pk,pki->pi", bary[rows], corners[rows])
-    dc = np.einsum("pk,kij->pij", bary[rows], np.stack(_E[1:]))
+    dc = np.einsum("pk,kij->pij", bary[rows], corner_selectors)
     along = rows[on_edge[rows]]
     if len(along):
         k = edge[along]
@@ -540,8 +541,7 @@ def _edge_ramp(x, n, dn, outline_edges, outline_vertices, width):
         e, r = xj - xi, xs[along] - xi
         ee = np.sum(e * e, axis=1)
         tau = np.sum(r * e, axis=1) / ee
-        Ei = np.stack(_E[1:])[i]
-        Ej = np.stack(_E[1:])[j]
+        Ei, Ej = corner_selectors[i], corner_selectors[j]
         de, dr = Ej - Ei, _E[0] - Ei
         dtau = ((np.einsum("pik,pi->pk", dr, e) + np.einsum("pi,pik->pk", r, de)) / ee[:, None]
                 - 2.0 * tau[:, None] * np.einsum("pi,pik->pk", e, de) / ee[:, None])

@@ -73,16 +73,14 @@ class ToolContact(PointContribution):
 
     def set_plies(self, point_plies: np.ndarray, heights, tool_plies: dict) -> None:
         """A stack: ``point_plies`` (P,) the ply of each point, ``heights`` the plies' heights
-        z_k (mm), ``tool_plies`` {tool name: the ply it touches, or a mask (P,) of the points
-        it touches (those of every ply exposed to it)}. A moving tool (the punch) starts at
-        the height of the highest ply it touches: it travels the stroke from touching that
-        ply, and a stack ends with its bottom ply where one blank would."""
+        z_k (mm), ``tool_plies`` {tool name: a mask (P,) of the points it touches, those of
+        every ply exposed to it (:func:`drape.forming.plies.exposed_points`)}. A moving tool
+        (the punch) starts at the height of the highest ply it touches: it travels the stroke
+        from touching that ply, and a stack ends with its bottom ply where one blank would."""
         point_plies = np.asarray(point_plies)
         heights = np.asarray(heights, dtype=float)
         self.heights = heights[point_plies]
-        masks = {name: (point_plies == which if np.ndim(which) == 0
-                        else np.asarray(which, dtype=bool))
-                 for name, which in tool_plies.items()}
+        masks = {name: np.asarray(mask, dtype=bool) for name, mask in tool_plies.items()}
         self.touched = {name: np.flatnonzero(masks[name]) for name in self.surfaces}
         self.start = {name: float(heights[np.unique(point_plies[masks[name]])].max(
             initial=0.0)) for name in self.moving if name in masks}
