@@ -255,29 +255,68 @@ def one_ply_runs(tmp_path_factory):
     return root, plain, stacked
 
 
+#: on 2 ranks MUMPS's parallel factorisation sums in an order that varies from run to run:
+#: two runs of the same job then differ in the last digits (measured 5e-13 relative in CI)
+ROUND_OFF = 1e-10
+
+
+def equal_to_round_off(a, b, bound: float, scale: float = 0.0) -> bool:
+    """a == b for strings and integers; floats (or float strings) within ``bound`` of the
+    larger of their size and ``scale``; lists and dicts item by item."""
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(equal_to_round_off(a[k], b[k], bound, scale)
+                                             for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(equal_to_round_off(x, y, bound, scale)
+                                        for x, y in zip(a, b))
+    if isinstance(a, str):
+        if a.lstrip("-").isdigit() or b.lstrip("-").isdigit():
+            return a == b           # a count: steps, iterations, cutbacks
+        try:
+            a, b = float(a), float(b)
+        except ValueError:
+            return a == b
+    if isinstance(a, float) or isinstance(b, float):
+        return abs(a - b) <= bound * max(abs(a), abs(b), scale)
+    return a == b
+
+
 @pytest.mark.two_ranks
-def test_a_one_ply_stack_is_todays_job_bit_for_bit(one_ply_runs):
-    """steps.csv (but its seconds), summary.json (but the wall time) and result.npz equal."""
+def test_a_one_ply_stack_is_todays_job_to_round_off(one_ply_runs):
+    """steps.csv (but its seconds), summary.json (but the wall time) and result.npz equal:
+    bit for bit on 1 rank; on 2 to ROUND_OFF of each column's largest value, the counts
+    (steps, iterations, cutbacks) exactly."""
     from mpi4py import MPI
     root, _, _ = one_ply_runs
     if MPI.COMM_WORLD.rank != 0:
         return
     a, b = root / "blank", root / "plies"
+    bound = 0.0 if MPI.COMM_WORLD.size == 1 else ROUND_OFF
 
     def rows(folder):
         lines = [line.split(",") for line in (folder / "steps.csv").read_text().splitlines()]
         seconds = lines[0].index("seconds")
         return [line[:seconds] + line[seconds + 1:] for line in lines]
 
-    assert rows(a) == rows(b) and len(rows(a)) >= 5     # the header, step 0 and 3+ steps
+    one, two = rows(a), rows(b)
+    assert one[0] == two[0] and len(one) == len(two) and len(one) >= 5   # header, 0, 3+ steps
+    for column in zip(*one[1:], *two[1:]):
+        numbers = np.abs(np.array(column, dtype=float))
+        n = len(one) - 1
+        assert equal_to_round_off(list(column[:n]), list(column[n:]), bound, numbers.max())
     summaries = [json.loads((f / "summary.json").read_text()) for f in (a, b)]
     for s in summaries:
         s.pop("wall_time_s")
-    assert summaries[0] == summaries[1]
+    assert equal_to_round_off(summaries[0], summaries[1], bound)
     with np.load(a / "result.npz") as one, np.load(b / "result.npz") as two:
         assert one.files == two.files
         for name in one.files:
-            assert np.array_equal(one[name], two[name]), name
+            x, y = one[name], two[name]
+            assert x.shape == y.shape and x.dtype == y.dtype, name
+            if np.issubdtype(x.dtype, np.floating):
+                assert np.abs(x - y).max(initial=0) <= bound * np.abs(x).max(initial=0), name
+            else:
+                assert np.array_equal(x, y), name
 
 
 @pytest.mark.two_ranks
