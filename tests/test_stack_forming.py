@@ -209,22 +209,16 @@ def test_each_tool_touches_its_ply_at_its_height():
     assert np.isinf(gap[2:]).all() and (response.pressure[2:] == 0).all()
 
 
-def test_the_tools_see_every_ply_exposed_to_them():
-    """exposed_points on a 100 mm square bottom ply under a disc of radius 60 mm: a point of
-    the bottom ply is exposed from above (to the punch and the holder) where the disc does
-    not cover it, one of the disc exposed from below (to the die) past the square; the die
-    then pushes such a point of the top ply at the top ply's height."""
-    from drape.forming.plies import PlyConfig, exposed_points
+def test_the_die_pushes_each_exposed_point_at_its_plys_height():
+    """A flat die under two plies, the die's mask (drape.forming.exposure, tests/
+    test_exposure.py) exposing the bottom ply's points and the top ply's first point (past the
+    bottom ply's edge): the die pushes each exposed point by the penalty times its
+    penetration, the top ply's at the top ply's height, and leaves the covered point alone."""
     from drape.forming.tool_contact import ToolContact
     from drape.forming.tool_query import ContactQuery
-    square = PlyConfig(thickness=0.3, length=100.0, width=100.0).blank()
-    disc = PlyConfig(thickness=0.3, shape="disc", radius=60.0).blank()
     xy = np.array([[40.0, 40.0], [45.0, 45.0], [55.0, 0.0], [0.0, 0.0]])
     plies = np.array([0, 0, 1, 1])
-    # hypot(40, 40) = 56.6 < 60 (covered), hypot(45, 45) = 63.6 > 60; |55| > 50
-    from_above, from_below = exposed_points([square, disc], plies, xy)
-    assert from_above.tolist() == [False, True, True, True]
-    assert from_below.tolist() == [True, True, True, False]
+    from_below = np.array([True, True, True, False])
 
     class Plane:
         def query(self, points, offset=None, cutoff=None):
@@ -239,6 +233,10 @@ def test_the_tools_see_every_ply_exposed_to_them():
     positions = np.column_stack([xy, np.full(4, -0.32)])   # the top ply 0.02 into the die
     f, _ = contact.evaluate(positions, positions * [0, 0, 1])
     assert f[:, 2] == pytest.approx([3.2, 3.2, 0.2, 0.0])   # 10 N/mm^3 x the penetration
+    contact.commit()
+    contact.set_exposure({"die": np.array([True, True, False, True])})    # the plies moved
+    f, _ = contact.evaluate(positions, positions * [0, 0, 1])
+    assert f[:, 2] == pytest.approx([3.2, 3.2, 0.0, 0.2])
 
 
 # --- forming runs -------------------------------------------------------------------------
@@ -284,8 +282,9 @@ def equal_to_round_off(a, b, bound: float, scale: float = 0.0) -> bool:
 @pytest.mark.two_ranks
 def test_a_one_ply_stack_is_todays_job_to_round_off(one_ply_runs):
     """steps.csv (but its seconds), summary.json (but the wall time) and result.npz equal:
-    bit for bit on 1 rank; on 2 to ROUND_OFF of each column's largest value, the counts
-    (steps, iterations, cutbacks) exactly."""
+    bit for bit on 1 rank; on 2 to ROUND_OFF of each column's largest value (the residual's
+    to ROUND_OFF of the punch force's: measured 6e-12 N apart), the counts (steps, iterations,
+    cutbacks) exactly."""
     from mpi4py import MPI
     root, _, _ = one_ply_runs
     if MPI.COMM_WORLD.rank != 0:
@@ -300,10 +299,13 @@ def test_a_one_ply_stack_is_todays_job_to_round_off(one_ply_runs):
 
     one, two = rows(a), rows(b)
     assert one[0] == two[0] and len(one) == len(two) and len(one) >= 5   # header, 0, 3+ steps
-    for column in zip(*one[1:], *two[1:]):
-        numbers = np.abs(np.array(column, dtype=float))
-        n = len(one) - 1
-        assert equal_to_round_off(list(column[:n]), list(column[n:]), bound, numbers.max())
+    n = len(one) - 1
+    columns = {name: np.array(column, dtype=float)
+               for name, column in zip(one[0], zip(*one[1:], *two[1:]))}
+    for name, column in zip(one[0], zip(*one[1:], *two[1:])):
+        # a converged step's residual (N) is the round-off of forces as large as the punch's
+        scale = np.abs(columns["punch_force" if name == "residual_norm" else name]).max()
+        assert equal_to_round_off(list(column[:n]), list(column[n:]), bound, scale), name
     summaries = [json.loads((f / "summary.json").read_text()) for f in (a, b)]
     for s in summaries:
         s.pop("wall_time_s")
@@ -325,7 +327,9 @@ def test_the_die_holds_a_top_ply_that_reaches_past_the_bottom_one(tmp_path):
     touches the top ply where the bottom one does not cover it (before, the die saw the bottom
     ply only and the top ply's overhang hung in the die's face); the overhang carries die
     pressure and none of it lies below the die's face (it sags onto the die from the bottom
-    ply's height, held up by the smoothed penalty within g0 = 0.3 mm)."""
+    ply's height, held up by the smoothed penalty within g0 = 0.3 mm). The top ply then moved
+    by 20 mm: Forming.follow_exposure gives the die and the punch the points of the moved
+    plies."""
     from mpi4py import MPI
 
     from drape.forming.press import Forming
@@ -353,6 +357,30 @@ def test_the_die_holds_a_top_ply_that_reaches_past_the_bottom_one(tmp_path):
     assert comm.allreduce(float(response.pressure[overhang].max(initial=0.0)),
                           op=MPI.MAX) > 1e-4
     assert comm.allreduce(float(gap[overhang].min(initial=np.inf)), op=MPI.MIN) > 0.0
+    # the top ply moved 20 mm along x: after the step the die touches the top ply where it
+    # now lies past the bottom ply (its points at |x| > 50 mm or |y| > 50 mm, those within
+    # 0.5 mm of that outline left out), the punch no point of the bottom ply (the moved top
+    # ply still covers it)
+    from dolfinx import fem
+    shift = 20.0
+    ply_cells = np.flatnonzero(problem.blank_mesh.cell_plies() == 1).astype(np.int32)
+    dofs = fem.locate_dofs_topological(problem.u.function_space, 2, ply_cells)
+    problem.u.x.array.reshape(-1, 3)[dofs, 0] += shift
+    contact = forming.tool_contact
+    contact.committed_u[plies == 1, 0] += shift
+    forming.follow_exposure()
+    now = xy + contact.committed_u[:, :2]
+    die = np.zeros(len(xy), dtype=bool)
+    die[contact.touched["die"]] = True
+    punch = np.zeros(len(xy), dtype=bool)
+    punch[contact.touched["punch"]] = True
+    beyond = np.abs(now).max(axis=1)
+    clear = np.abs(beyond - 50.0) > 0.5
+    top_ply, bottom_ply = plies == 1, plies == 0
+    assert comm.allreduce(bool(np.array_equal(die[top_ply & clear],
+                                              beyond[top_ply & clear] > 50.0)), op=MPI.LAND)
+    assert comm.allreduce(int((top_ply & die & (now[:, 0] > 50.0)).sum())) > 100
+    assert not comm.allreduce(bool(punch[bottom_ply].any()), op=MPI.LOR)
 
 
 def frictionless(root):

@@ -64,37 +64,6 @@ class PlyConfig:
         return blank
 
 
-def ply_covers(blank, xy):
-    """Whether the points xy (P, 2, mm, in the forming's reference plane) lie inside a ply's
-    outline (``blank``: :meth:`PlyConfig.blank`; a rectangle centred on the tools' axis as
-    forming places it, a disc centred there, a polygon where its points are)."""
-    import numpy as np
-
-    from drape.geometry.outline import inside_polygon
-    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-    if blank.shape == "rectangle":
-        return (np.abs(xy[:, 0]) <= 0.5 * blank.length) & (np.abs(xy[:, 1]) <= 0.5 * blank.width)
-    if blank.shape == "disc":
-        return np.hypot(xy[:, 0], xy[:, 1]) <= blank.radius
-    from drape.job import blank_outline
-    return inside_polygon(blank_outline(blank), xy)
-
-
-def exposed_points(blanks, point_plies, xy) -> tuple:
-    """Which points (the ply of each, ``point_plies`` (P,), at xy (P, 2)) no other ply covers
-    from above, and which none covers from below (``blanks``: each ply's outline, bottom
-    first): where the punch and the holder, and where the die, can touch a stack."""
-    import numpy as np
-    point_plies = np.asarray(point_plies)
-    inside = np.array([ply_covers(blank, xy) for blank in blanks]).reshape(len(blanks), -1)
-    above = np.zeros(len(point_plies), dtype=bool)
-    below = np.zeros(len(point_plies), dtype=bool)
-    for k in range(len(blanks)):
-        above |= inside[k] & (point_plies < k)
-        below |= inside[k] & (point_plies > k)
-    return ~above, ~below
-
-
 @dataclasses.dataclass(frozen=True)
 class InterfaceConfig:
     """The contact between two adjacent plies (an ``[[interfaces]]`` table): the friction

@@ -173,7 +173,7 @@ class PlyContact:
         #: per master triangle, which of its edges (the one opposite each vertex) and which
         #: of its vertices lie on its ply's outline: only past those does a slave lose
         #: contact (the edge ramp)
-        self.outline_edges, self.outline_vertices = _outline(nodes.triangles,
+        self.outline_edges, self.outline_vertices = triangle_outline(nodes.triangles,
                                                              nodes.triangle_ply)
         #: per ply, the width (mm) over which a slave past its outline loses contact:
         #: EDGE_RAMP times its element size, sqrt(2 x its triangles' mean reference area)
@@ -573,7 +573,7 @@ def _barycentric(x, a, b, c) -> np.ndarray:
     return np.column_stack([1.0 - lb - lc, lb, lc])
 
 
-def _outline(triangles: np.ndarray, triangle_ply: np.ndarray):
+def triangle_outline(triangles: np.ndarray, triangle_ply: np.ndarray):
     """Per triangle (T, 3 each): whether the edge opposite each vertex lies on its ply's
     outline (no other triangle of the ply shares it), and whether each vertex does."""
     if not len(triangles):

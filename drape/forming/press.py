@@ -183,22 +183,41 @@ class Forming(JobPart):
         """A stack: the die touches every ply where no ply below covers it (the bottom ply,
         and an upper ply where it reaches past those below), the punch and the holder every
         ply where no ply above covers it (the top ply, and a lower one past a partial top
-        ply), each ply seen at its height (:func:`drape.forming.plies.exposed_points`, on
-        the reference outlines). Returns the top ply, its height (mm) and each contact
-        point's ply (None, 0.0, None for one blank)."""
-        from drape.forming.plies import exposed_points
+        ply), each ply seen at its height (:class:`drape.forming.exposure.StackExposure`,
+        followed after every converged step by :meth:`follow_exposure`). Returns the top ply,
+        its height (mm) and each contact point's ply (None, 0.0, None for one blank)."""
+        from drape.forming.exposure import StackExposure
         mesh = problem.blank_mesh
+        self.exposure = None
         if getattr(mesh, "n_plies", 1) < 2:
             return None, 0.0, None
         top = mesh.n_plies - 1
         point_plies = np.repeat(mesh.cell_plies()[: problem.n_cells], self.n_extra)
-        from_above, from_below = exposed_points([ply.blank() for ply in self.stack.plies],
-                                                point_plies,
-                                                self.tool_contact.reference_points)
-        touches = {name: from_below if name == "die" else from_above
-                   for name in self.tool_contact.surfaces}
-        self.tool_contact.set_plies(point_plies, mesh.heights, touches)
+        self.exposure = StackExposure(problem.ply_contact.nodes)
+        self._point_plies = point_plies
+        self._point_heights = np.asarray(mesh.heights, dtype=float)[point_plies]
+        self.tool_contact.set_plies(point_plies, mesh.heights,
+                                    self._exposed(problem.ply_contact.nodes.reference))
         return top, float(mesh.heights[top]), point_plies
+
+    def _exposed(self, x_nodes) -> dict:
+        """{tool: the mask of the points it touches}, the stack's nodes at x_nodes (N, 3) and
+        the contact points where the last converged step left them."""
+        contact = self.tool_contact
+        points = np.column_stack([contact.reference_points, self._point_heights])
+        points += contact.committed_u
+        from_above, from_below = self.exposure.masks(x_nodes, self._point_plies, points)
+        return {name: from_below if name == "die" else from_above for name in contact.surfaces}
+
+    def follow_exposure(self) -> None:
+        """A stack, after a converged step: the tools touch the points the plies leave
+        exposed where that step left them (plies that draw in past each other's edges
+        uncover or cover points). Collective (the displacements are gathered)."""
+        if self.exposure is None:
+            return
+        problem = self.problem
+        x_nodes = problem.ply_contact.nodes.reference + problem.gather(problem.u)
+        self.tool_contact.set_exposure(self._exposed(x_nodes))
 
     def set_load(self, t: float) -> None:
         self.tool_contact.set_load(t)
@@ -263,6 +282,7 @@ class Forming(JobPart):
         columns = record.columns
         columns.update(self.tool_row(record.t, converged=record.step > 0))
         self.control_holder(record)
+        self.follow_exposure()
         before = (records[-1].columns if records
                   else {"punch_work": 0.0, "punch_force": 0.0, "stroke": 0.0})
         columns["punch_work"] = before["punch_work"] + 0.5 * (

@@ -74,7 +74,7 @@ class ToolContact(PointContribution):
     def set_plies(self, point_plies: np.ndarray, heights, tool_plies: dict) -> None:
         """A stack: ``point_plies`` (P,) the ply of each point, ``heights`` the plies' heights
         z_k (mm), ``tool_plies`` {tool name: a mask (P,) of the points it touches, those of
-        every ply exposed to it (:func:`drape.forming.plies.exposed_points`)}. A moving tool
+        every ply exposed to it (:class:`drape.forming.exposure.StackExposure`)}. A moving tool
         (the punch) starts at the height of the highest ply it touches: it travels the stroke
         from touching that ply, and a stack ends with its bottom ply where one blank would."""
         point_plies = np.asarray(point_plies)
@@ -84,6 +84,15 @@ class ToolContact(PointContribution):
         self.touched = {name: np.flatnonzero(masks[name]) for name in self.surfaces}
         self.start = {name: float(heights[np.unique(point_plies[masks[name]])].max(
             initial=0.0)) for name in self.moving if name in masks}
+
+    def set_exposure(self, tool_plies: dict) -> None:
+        """A stack, between steps: the points each tool touches from now on ({tool name: a
+        mask (P,)}). A point a tool stops touching forgets its friction memory there (it
+        slides free of the tool); the moving tools keep their start."""
+        for name, mask in tool_plies.items():
+            mask = np.asarray(mask, dtype=bool)
+            self.touched[name] = np.flatnonzero(mask)
+            self.elastic_slip[name][~mask] = 0.0
 
     def setup(self, reference_points):
         super().setup(reference_points)
@@ -160,6 +169,11 @@ class ToolContact(PointContribution):
         state = {"committed_u": self.committed_u,
                  **{f"offset_{k}": v for k, v in self.committed_offsets.items()},
                  **{f"elastic_slip_{k}": v for k, v in self.elastic_slip.items()}}
+        if self.touched is not None:        # a stack: the points each tool touches
+            for name, touched in self.touched.items():
+                mask = np.zeros(len(self.committed_u))
+                mask[touched] = 1.0
+                state[f"touches_{name}"] = mask
         if self.holder_control is not None:
             state["holder_target"] = np.array(self.holder_control.target)
         return state
@@ -170,5 +184,7 @@ class ToolContact(PointContribution):
         for k in self.committed_offsets:
             self.committed_offsets[k] = np.array(state[f"offset_{k}"], copy=True)
             self.elastic_slip[k] = np.array(state[f"elastic_slip_{k}"], copy=True)
+            if self.touched is not None and f"touches_{k}" in state:
+                self.touched[k] = np.flatnonzero(np.asarray(state[f"touches_{k}"]) > 0.5)
         if self.holder_control is not None:
             self.holder_control.target = float(state["holder_target"])

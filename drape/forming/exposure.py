@@ -1,0 +1,83 @@
+"""Which points of a stack of plies each tool can touch: those no other ply covers, on the
+plies' current surfaces.
+
+The die touches a point of ply i where no ply below it (k < i) covers it, the punch and the
+holder where no ply above it (k > i) does. Ply k covers a point where the point's closest
+point on ply k's mid-surface (its cells split into flat triangles, at their current
+positions) lies inside the ply, not on its outline: a point past ply k's edge has its closest
+point on an edge or a vertex of the outline. Taken on the deformed plies, the masks follow
+plies that draw in past each other's edges, and a partial ply or a drop-off is whatever its
+mesh covers.
+
+Plain numpy and scipy on the stack's nodes in global numbering
+(:class:`drape.forming.ply_contact.StackNodes`); the points are this rank's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from drape.forming.ply_contact import StackNodes, triangle_outline
+from drape.forming.surfaces import closest_point_on_triangles
+
+
+class StackExposure:
+    """The masks of the points each tool can touch, for the stack's nodes and triangles."""
+
+    def __init__(self, nodes: StackNodes):
+        self.nodes = nodes
+        self.outline_edges, self.outline_vertices = triangle_outline(nodes.triangles,
+                                                                     nodes.triangle_ply)
+        self.n_plies = int(nodes.ply.max(initial=0)) + 1
+
+    def covered(self, x_nodes: np.ndarray, k: int, points: np.ndarray) -> np.ndarray:
+        """Whether ply k, its nodes at x_nodes (N, 3, mm), covers the points (P, 3, mm)."""
+        triangles = np.flatnonzero(self.nodes.triangle_ply == k)
+        if not len(points) or not len(triangles):
+            return np.zeros(len(points), dtype=bool)
+        corners = x_nodes[self.nodes.triangles[triangles]]
+        centroids = corners.mean(axis=1)
+        radius = np.linalg.norm(corners - centroids[:, None], axis=2).max()
+        tree = cKDTree(centroids)
+        # the closest triangle's centroid lies within the nearest centroid's distance plus
+        # a triangle's radius (that triangle is at most as far as its centroid)
+        nearest, _ = tree.query(points)
+        found = tree.query_ball_point(points, nearest + radius + 1e-9)
+        counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=len(found))
+        which = np.repeat(np.arange(len(points)), counts)
+        candidates = np.concatenate(found).astype(np.int64)
+        _, bary, squared = closest_point_on_triangles(points[which], corners[candidates, 0],
+                                                      corners[candidates, 1],
+                                                      corners[candidates, 2])
+        # per point its closest candidate (ties share the closest point, so either will do)
+        order = np.lexsort((squared, which))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = which[order][1:] != which[order][:-1]
+        best = order[first]
+        bary, triangle = bary[best], triangles[candidates[best]]
+        zeros = bary == 0.0
+        on_vertex = zeros.sum(axis=1) == 2
+        on_edge = zeros.sum(axis=1) == 1
+        rows = np.arange(len(best))
+        past = ((on_vertex & self.outline_vertices[triangle, np.argmax(bary, axis=1)])
+                | (on_edge & self.outline_edges[triangle, np.argmax(zeros, axis=1)]))
+        covered = np.empty(len(points), dtype=bool)
+        covered[which[best]] = ~past[rows]
+        return covered
+
+    def masks(self, x_nodes: np.ndarray, point_plies: np.ndarray, points: np.ndarray):
+        """(exposed from above, exposed from below): which points (P, 3, mm; ``point_plies``
+        (P,) the ply of each) no ply above covers (the punch's and the holder's) and which
+        no ply below covers (the die's), the nodes at x_nodes (N, 3, mm)."""
+        point_plies = np.asarray(point_plies)
+        above = np.zeros(len(points), dtype=bool)
+        below = np.zeros(len(points), dtype=bool)
+        for k in range(self.n_plies):
+            lower, upper = point_plies < k, point_plies > k
+            others = lower | upper
+            hit = np.zeros(len(points), dtype=bool)
+            hit[others] = self.covered(x_nodes, k, points[others])
+            above |= hit & lower
+            below |= hit & upper
+        return ~above, ~below
