@@ -113,6 +113,15 @@ def compose_title(title: str, blank) -> str:
     return title if described in title else ", ".join(p for p in (title, described) if p)
 
 
+def _ply_error(k: int, error: InputError, problem: str = "", expected: str = ""):
+    """A ply's blank error (``error``, naming ``blank.*``) as the stack's: naming plies[k]."""
+    key = error.key or ""
+    if key.startswith("blank."):
+        key = f"plies[{k}]." + key.removeprefix("blank.").replace("yarn_angle", "orientation")
+    return InputError(f"{error.problem} (ply {k}){problem}", key=key, value=error.value,
+                      expected=f"{error.expected}{expected}")
+
+
 @dataclasses.dataclass(frozen=True)
 class JobConfig:
     """A ``drape run`` job."""
@@ -178,19 +187,27 @@ class JobConfig:
             raise InputError("prescribed displacements on a stack of plies", key="boundary",
                              expected="no [[boundary]] tables with [[plies]] (the tools hold "
                                       "the stack)")
+        # a ply may stop short of the die's opening (a patch, a drop-off: it rests on the
+        # plies that span it), but one ply at least must span it
+        from drape.forming.checks import COVER_PROBLEM
+        uncovered = None
         for k, ply in enumerate(self.plies):
             alone = dataclasses.replace(self, blank=ply.blank(), plies=(), interfaces=())
             try:
-                alone._validate_blank_job()
+                alone._validate_blank_job(cover=False)
+                alone._validate_blank_job(cover=True)
+                uncovered = False
             except InputError as error:
-                key = error.key or ""
-                if key.startswith("blank."):
-                    key = f"plies[{k}]." + key.removeprefix("blank.").replace(
-                        "yarn_angle", "orientation")
-                raise InputError(f"{error.problem} (ply {k})", key=key, value=error.value,
-                                 expected=error.expected) from None
+                if error.problem.startswith(COVER_PROBLEM):
+                    uncovered = (k, error) if uncovered is None else uncovered
+                    continue
+                raise _ply_error(k, error) from None
+        if uncovered:
+            k, error = uncovered
+            raise _ply_error(k, error, " and no other ply does",
+                             " (one ply at least: the others may be partial)") from None
 
-    def _validate_blank_job(self):
+    def _validate_blank_job(self, cover: bool = True):
         from drape.fe.loading import CONSTANTS, FUNCTIONS, VARIABLES
         reserved = set(VARIABLES) | set(CONSTANTS) | set(FUNCTIONS)
         for name in self.history:
@@ -198,7 +215,7 @@ class JobConfig:
                 raise InputError("not a usable history name", key=f"history.{name}", value=name,
                                  expected="an identifier other than " + ", ".join(sorted(reserved)))
         if self.process is not None:
-            self._validate_forming()
+            self._validate_forming(cover)
         elif self.tools is not None:
             raise InputError("tools without a [process] table", key="process",
                              expected="a [process] table (stroke, holder_force) to run a forming "
@@ -261,9 +278,9 @@ class JobConfig:
                                       f"= {largest:g} mm")
 
 
-    def _validate_forming(self):
+    def _validate_forming(self, cover: bool = True):
         from drape.forming.checks import check_forming
-        check_forming(self)
+        check_forming(self, cover=cover)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -124,8 +124,12 @@ BAD_STACKS = {
                    ["key 'interfaces'", "expected 2 [[interfaces]] tables"]),
     "friction": ([ply(), ply()], ["friction = -0.1"], "", [],
                  ["key 'interfaces[0].friction'", "a number >= 0"]),
-    "off the die": ([ply(), ply(side=60.0)], [], "", [],
-                    ["key 'plies[1].length'", "does not cover the die opening"]),
+    # one ply may stop short of the die's opening (a patch), but not all of them
+    "no ply over the opening": ([ply(side=60.0), ply(side=60.0)], [], "", [],
+                                ["key 'plies[0].length'", "does not cover the die opening "
+                                 "(ply 0) and no other ply does", "one ply at least"]),
+    "off the die": ([ply(), ply(side=400.0)], [], "", [],
+                    ["key 'plies[1].length'", "reaches beyond the die (ply 1)"]),
     "unknown key": (["[[plies]]\nthickness = 0.3\nangle = 45\n", ply()], [], "", [],
                     ["key 'plies[0].angle'", "unknown key"]),
 }
@@ -381,6 +385,49 @@ def test_the_die_holds_a_top_ply_that_reaches_past_the_bottom_one(tmp_path):
                                               beyond[top_ply & clear] > 50.0)), op=MPI.LAND)
     assert comm.allreduce(int((top_ply & die & (now[:, 0] > 50.0)).sum())) > 100
     assert not comm.allreduce(bool(punch[bottom_ply].any()), op=MPI.LOR)
+
+
+@pytest.mark.two_ranks
+def test_a_patch_on_top_leaves_the_holder_to_the_ply_below(tmp_path):
+    """A R 20 mm ±45 disc (a reinforcement patch under the punch) on the 140 mm square ply,
+    pressed 3 mm: the holder (r >= 45 mm) reaches only the square. Before, the holder's
+    force control counted the top ply's area under its face, found none and refused the job
+    ("no blank under the blank holder"). Now it presses the highest ply it reaches: the holder
+    carries its 100 N within 1 % at every converged step, all of it on the square's points;
+    the punch presses the patch, and no point enters a tool by 1 % of h."""
+    from mpi4py import MPI
+
+    from drape.forming.press import Forming
+    from drape.job import load_job
+    from drape.run import run_job
+    root = shared(tmp_path)
+    path = root / "stack.toml"
+    patch = ('[[plies]]\norientation = 45.0\nthickness = 0.3\nshape = "disc"\n'
+             "radius = 20.0\n")
+    if MPI.COMM_WORLD.rank == 0:
+        stack_job(root, [ply(), patch])
+    MPI.COMM_WORLD.barrier()
+    job = load_job(path, overrides=SMALL)
+    parts = {}
+    summary = run_job(job, MPI.COMM_WORLD, output=str(root / "run"),
+                      on_start=lambda run: parts.update(problem=run.problem,
+                                                        forming=run.part(Forming)))
+    problem, forming = parts["problem"], parts["forming"]
+    assert summary.rows[-1].columns["stroke"] == pytest.approx(3.0)
+    for record in summary.rows[1:]:
+        assert record.columns["holder_force"] == pytest.approx(100.0, rel=0.01), record.step
+        assert record.columns["max_penetration"] < 0.01 * job.config.mesh.size
+    contact = forming.tool_contact
+    plies = np.repeat(problem.blank_mesh.cell_plies()[: problem.n_cells], forming.n_extra)
+    comm = problem.comm
+
+    def force(name, ply):
+        pressure = contact.last[name][1].pressure
+        return comm.allreduce(float((pressure * forming.areas)[plies == ply].sum()))
+
+    assert force("holder", 1) == 0.0
+    assert force("holder", 0) == pytest.approx(100.0, rel=0.02)
+    assert force("punch", 1) > 0.0
 
 
 def frictionless(root):

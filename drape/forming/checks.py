@@ -75,16 +75,21 @@ def _polygon_radii(blank) -> tuple[float, float]:
     return (gap if inside_polygon(outline, origin)[0] else -gap), reach
 
 
-def check_forming(config) -> None:
+#: the start of the error for a blank that does not span the die's opening or cavity
+COVER_PROBLEM = "the blank does not cover the die"
+
+
+def check_forming(config, cover: bool = True) -> None:
     """Cross-checks of a forming job (InputError naming the key): stroke within the tools, blank
-    on the die and over its opening, mesh fine enough for the tools' fillets."""
+    on the die and over its opening (unless ``cover`` is False: a ply of a stack, which may
+    rest on the others), mesh fine enough for the tools' fillets."""
     tools, dims = tool_set(config)
     _check_stroke(config, tools, dims)
     half_extents = blank_half_extents(config.blank)
     if config.blank.shape == "polygon":
-        _check_polygon_blank(config, tools, dims, half_extents)
+        _check_polygon_blank(config, tools, dims, half_extents, cover)
     else:
-        _check_blank(config, tools, dims, half_extents)
+        _check_blank(config, tools, dims, half_extents, cover)
     _check_mesh(config)
 
 
@@ -124,14 +129,14 @@ def _check_stroke(config, tools, dims) -> None:
                                   "(the punch would hit the die)")
 
 
-def _check_polygon_blank(config, tools, dims, half_extents) -> None:
+def _check_polygon_blank(config, tools, dims, half_extents, cover: bool = True) -> None:
     """A polygon blank covers the die's opening (cavity) and stays on the die."""
     key = _blank_key(config.blank)
     inner, reach = _polygon_radii(config.blank)
     if tools.kind == "hemisphere":
         opening = _hemisphere_opening(dims)
-        if inner <= opening:
-            raise InputError("the blank does not cover the die opening", key=key,
+        if cover and inner <= opening:
+            raise InputError(COVER_PROBLEM + " opening", key=key,
                              value=f"its edge {inner:.4g} mm from the tools' axis",
                              expected=f"a polygon around x = y = 0 reaching beyond r = "
                                       f"{opening:g} mm all round")
@@ -146,8 +151,8 @@ def _check_polygon_blank(config, tools, dims, half_extents) -> None:
         outline = blank_outline(config.blank)
         ox, oy = _double_dome_cavity(dims)
         corners = np.array([[ox, oy], [-ox, oy], [-ox, -oy], [ox, -oy]])
-        if not inside_polygon(outline, corners).all() or min(hx, hy) <= min(ox, oy):
-            raise InputError("the blank does not cover the die cavity", key=key,
+        if cover and (not inside_polygon(outline, corners).all() or min(hx, hy) <= min(ox, oy)):
+            raise InputError(COVER_PROBLEM + " cavity", key=key,
                              expected=f"a polygon around the cavity |x| < {ox:g}, "
                                       f"|y| < {oy:g} mm")
         if hx > dims.die_length / 2 or hy > dims.die_width / 2:
@@ -156,7 +161,7 @@ def _check_polygon_blank(config, tools, dims, half_extents) -> None:
                                       f"{dims.die_width / 2:g} mm")
 
 
-def _check_blank(config, tools, dims, half_extents) -> None:
+def _check_blank(config, tools, dims, half_extents, cover: bool = True) -> None:
     """A rectangle or disc blank covers the die's opening (cavity) and stays on the die,
     corners included."""
     blank = config.blank
@@ -165,8 +170,8 @@ def _check_blank(config, tools, dims, half_extents) -> None:
     if tools.kind == "hemisphere":
         reach = math.hypot(hx, hy) if blank.shape == "rectangle" else hx
         opening = _hemisphere_opening(dims)
-        if min(hx, hy) <= opening:
-            raise InputError("the blank does not cover the die opening", key=key,
+        if cover and min(hx, hy) <= opening:
+            raise InputError(COVER_PROBLEM + " opening", key=key,
                              value=2 * min(hx, hy) if blank.shape == "rectangle" else hx,
                              expected=f"a blank reaching beyond r = {opening:g} mm all round")
         if reach > dims.die_outer_radius:
@@ -176,8 +181,8 @@ def _check_blank(config, tools, dims, half_extents) -> None:
                                       f"included (they are at r = {reach:.4g} mm)")
     elif tools.kind == "double_dome":
         opening_x, opening_y = _double_dome_cavity(dims)
-        if hx <= opening_x or hy <= opening_y:
-            raise InputError("the blank does not cover the die cavity", key=key,
+        if cover and (hx <= opening_x or hy <= opening_y):
+            raise InputError(COVER_PROBLEM + " cavity", key=key,
                              value=(2 * hx, 2 * hy),
                              expected=f"length > {2 * opening_x:g} and "
                                       f"width > {2 * opening_y:g} mm")

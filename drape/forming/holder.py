@@ -112,10 +112,10 @@ class HolderControl:
     Without the lift the holder would stop 2 g0 above the die, where the smoothed penalty's
     pressure falls to zero, and could not rise far enough to bring the force down to F.
 
-    A stack of n plies (``contacts`` = n + 1 penalty contacts in series: holder on the top ply,
-    the n - 1 interfaces, the bottom ply on the die, each at the same pressure) closes n + 1
-    gaps instead of 2, and its top ply's mid-surface lies z_top above the die (``opening`` less
-    z_top: the holder's face starts there)."""
+    A stack whose highest ply under the holder is ply k (``contacts`` = k + 2 penalty contacts
+    in series: holder on ply k, the k interfaces below it, the bottom ply on the die, each at
+    the same pressure) closes k + 2 gaps instead of 2, and ply k's mid-surface lies z_k above
+    the die (``opening`` less z_k: the holder's face starts there)."""
 
     GAIN = 0.5
 

@@ -158,7 +158,7 @@ class Forming(JobPart):
         self.problem = problem
         self.areas = areas.ravel()
         self.n_extra = areas.shape[1]
-        top, z_top, point_plies = self._bind_plies(problem)
+        point_plies = self._bind_plies(problem)
         if self._holder_force_controlled:
             reference = np.column_stack([self.tool_contact.reference_points,
                                          np.zeros(self.areas.size)])
@@ -171,9 +171,16 @@ class Forming(JobPart):
                                               self.comm)
             if point_plies is None:
                 contacts = 2
-            else:       # the holder presses the top ply, z_top above the die's face
-                under = under & (point_plies == top)
-                opening, contacts = opening - z_top, top + 2
+            else:       # the holder presses the highest ply it reaches (exposed from above)
+                from mpi4py import MPI
+                exposed = np.zeros(len(under), dtype=bool)
+                exposed[self.tool_contact.touched["holder"]] = True
+                under = under & exposed
+                highest = self.comm.allreduce(int(point_plies[under].max(initial=-1)),
+                                              op=MPI.MAX)
+                if highest >= 0:    # else no blank under the holder: HolderControl says so
+                    heights = problem.blank_mesh.heights
+                    opening, contacts = opening - float(heights[highest]), highest + 2
             area = self.comm.allreduce(float(self.areas[under].sum()))
             self.holder = HolderControl(self.process.holder_force, area, self.penalty,
                                         self.smoothing, opening, contacts)
@@ -184,21 +191,20 @@ class Forming(JobPart):
         and an upper ply where it reaches past those below), the punch and the holder every
         ply where no ply above covers it (the top ply, and a lower one past a partial top
         ply), each ply seen at its height (:class:`drape.forming.exposure.StackExposure`,
-        followed after every converged step by :meth:`follow_exposure`). Returns the top ply,
-        its height (mm) and each contact point's ply (None, 0.0, None for one blank)."""
+        followed after every converged step by :meth:`follow_exposure`). Returns each contact
+        point's ply (None for one blank)."""
         from drape.forming.exposure import StackExposure
         mesh = problem.blank_mesh
         self.exposure = None
         if getattr(mesh, "n_plies", 1) < 2:
-            return None, 0.0, None
-        top = mesh.n_plies - 1
+            return None
         point_plies = np.repeat(mesh.cell_plies()[: problem.n_cells], self.n_extra)
         self.exposure = StackExposure(problem.ply_contact.nodes)
         self._point_plies = point_plies
         self._point_heights = np.asarray(mesh.heights, dtype=float)[point_plies]
         self.tool_contact.set_plies(point_plies, mesh.heights,
                                     self._exposed(problem.ply_contact.nodes.reference))
-        return top, float(mesh.heights[top]), point_plies
+        return point_plies
 
     def _exposed(self, x_nodes) -> dict:
         """{tool: the mask of the points it touches}, the stack's nodes at x_nodes (N, 3) and
