@@ -59,11 +59,10 @@ class StackExposure:
         zeros = bary == 0.0
         on_vertex = zeros.sum(axis=1) == 2
         on_edge = zeros.sum(axis=1) == 1
-        rows = np.arange(len(best))
         past = ((on_vertex & self.outline_vertices[triangle, np.argmax(bary, axis=1)])
                 | (on_edge & self.outline_edges[triangle, np.argmax(zeros, axis=1)]))
         covered = np.empty(len(points), dtype=bool)
-        covered[which[best]] = ~past[rows]
+        covered[which[best]] = ~past
         return covered
 
     def masks(self, x_nodes: np.ndarray, point_plies: np.ndarray, points: np.ndarray):

@@ -282,9 +282,9 @@ class Forming(JobPart):
 
     def measure(self, record, records: list, force) -> None:
         """A converged step's forming columns: the tools' forces and contact (:meth:`tool_row`),
-        the holder's correction for the next step, the punch's work (trapezoidal in the stroke),
-        which the record's external work includes (and so its regularisation share), and the
-        bending energy's share of it."""
+        the holder's correction and (a stack) the tools' masks for the next step, the punch's
+        work (trapezoidal in the stroke), which the record's external work includes (and so
+        its regularisation share), and the bending energy's share of it."""
         columns = record.columns
         columns.update(self.tool_row(record.t, converged=record.step > 0))
         self.control_holder(record)
