@@ -190,20 +190,21 @@ class JobConfig:
         # a ply may stop short of the die's opening (a patch, a drop-off: it rests on the
         # plies that span it), but one ply at least must span it
         from drape.forming.checks import COVER_PROBLEM
-        uncovered = None
+        uncovered = []
         for k, ply in enumerate(self.plies):
             alone = dataclasses.replace(self, blank=ply.blank(), plies=(), interfaces=())
             try:
-                alone._validate_blank_job(cover=False)
-                alone._validate_blank_job(cover=True)
-                uncovered = False
+                alone._validate_blank_job()
             except InputError as error:
-                if error.problem.startswith(COVER_PROBLEM):
-                    uncovered = (k, error) if uncovered is None else uncovered
-                    continue
-                raise _ply_error(k, error) from None
-        if uncovered:
-            k, error = uncovered
+                if not error.problem.startswith(COVER_PROBLEM):
+                    raise _ply_error(k, error) from None
+                uncovered.append((k, error))
+                try:                            # the checks after the cover's
+                    alone._validate_blank_job(cover=False)
+                except InputError as other:
+                    raise _ply_error(k, other) from None
+        if len(uncovered) == len(self.plies):
+            k, error = uncovered[0]
             raise _ply_error(k, error, " and no other ply does",
                              " (one ply at least: the others may be partial)") from None
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from drape.forming.ply_contact import StackNodes, triangle_outline
+from drape.forming.ply_contact import StackNodes, closest_on_outline, triangle_outline
 from drape.forming.surfaces import closest_point_on_triangles
 
 
@@ -55,12 +55,9 @@ class StackExposure:
         first = np.ones(len(order), dtype=bool)
         first[1:] = which[order][1:] != which[order][:-1]
         best = order[first]
-        bary, triangle = bary[best], triangles[candidates[best]]
-        zeros = bary == 0.0
-        on_vertex = zeros.sum(axis=1) == 2
-        on_edge = zeros.sum(axis=1) == 1
-        past = ((on_vertex & self.outline_vertices[triangle, np.argmax(bary, axis=1)])
-                | (on_edge & self.outline_edges[triangle, np.argmax(zeros, axis=1)]))
+        triangle = triangles[candidates[best]]
+        past, _, _ = closest_on_outline(bary[best], self.outline_edges[triangle],
+                                        self.outline_vertices[triangle])
         covered = np.empty(len(points), dtype=bool)
         covered[which[best]] = ~past
         return covered

@@ -174,7 +174,7 @@ class PlyContact:
         #: of its vertices lie on its ply's outline: only past those does a slave lose
         #: contact (the edge ramp)
         self.outline_edges, self.outline_vertices = triangle_outline(nodes.triangles,
-                                                             nodes.triangle_ply)
+                                                                     nodes.triangle_ply)
         #: per ply, the width (mm) over which a slave past its outline loses contact:
         #: EDGE_RAMP times its element size, sqrt(2 x its triangles' mean reference area)
         corners = nodes.reference[nodes.triangles][:, :, :2]
@@ -518,14 +518,7 @@ def _edge_ramp(x, n, dn, outline_edges, outline_vertices, width):
         return ramp, d_ramp
     xs, corners = x[:, 0], x[:, 1:]
     _, bary, _ = closest_point_on_triangles(xs, corners[:, 0], corners[:, 1], corners[:, 2])
-    zeros = bary == 0.0
-    on_vertex = zeros.sum(axis=1) == 2
-    on_edge = zeros.sum(axis=1) == 1
-    vertex = np.argmax(bary, axis=1)
-    edge = np.argmax(zeros, axis=1)
-    rows = np.arange(count)
-    outside = ((on_vertex & outline_vertices[rows, vertex])
-               | (on_edge & outline_edges[rows, edge]))
+    outside, on_edge, edge = closest_on_outline(bary, outline_edges, outline_vertices)
     if not outside.any():
         return ramp, d_ramp
     rows = np.flatnonzero(outside)
@@ -560,6 +553,23 @@ def _edge_ramp(x, n, dn, outline_edges, outline_vertices, width):
     ramp[rows] = s * s * (3.0 - 2.0 * s)
     d_ramp[rows] = -(6.0 * s * (1.0 - s) / width)[:, None] * dd
     return ramp, d_ramp
+
+
+def closest_on_outline(bary, outline_edges, outline_vertices):
+    """Of P closest points on triangles, given by their barycentric coordinates bary (P, 3)
+    (exact zeros where the point lies on an edge or at a vertex, as
+    :func:`~drape.forming.surfaces.closest_point_on_triangles` gives them): which lie on an
+    edge of the ply's outline (``outline_edges`` (P, 3): the edge opposite each vertex is one)
+    or at a vertex of it (``outline_vertices`` (P, 3)); and whether each lies on an edge, and
+    which (the index of the vertex opposite it)."""
+    zeros = bary == 0.0
+    on_vertex = zeros.sum(axis=1) == 2
+    on_edge = zeros.sum(axis=1) == 1
+    edge = np.argmax(zeros, axis=1)
+    rows = np.arange(len(bary))
+    outside = ((on_vertex & outline_vertices[rows, np.argmax(bary, axis=1)])
+               | (on_edge & outline_edges[rows, edge]))
+    return outside, on_edge, edge
 
 
 def _barycentric(x, a, b, c) -> np.ndarray:

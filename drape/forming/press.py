@@ -173,9 +173,7 @@ class Forming(JobPart):
                 contacts = 2
             else:       # the holder presses the highest ply it reaches (exposed from above)
                 from mpi4py import MPI
-                exposed = np.zeros(len(under), dtype=bool)
-                exposed[self.tool_contact.touched["holder"]] = True
-                under = under & exposed
+                under = under & self.tool_contact.touched["holder"]
                 highest = self.comm.allreduce(int(point_plies[under].max(initial=-1)),
                                               op=MPI.MAX)
                 if highest >= 0:    # else no blank under the holder: HolderControl says so

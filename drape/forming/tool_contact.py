@@ -64,7 +64,7 @@ class ToolContact(PointContribution):
         self.committed_offsets = dict(self.offsets)
         self.last = {}
         #: a stack: each point's height z_k (mm, (P,)) and, per tool, the points it touches
-        #: (indices); None: one ply at z = 0, every tool touching every point
+        #: (a mask (P,)); None: one ply at z = 0, every tool touching every point
         self.heights = None
         self.touched = None
         #: a stack: how high (mm) each moving tool starts above z = 0, the height of the ply it
@@ -81,7 +81,7 @@ class ToolContact(PointContribution):
         heights = np.asarray(heights, dtype=float)
         self.heights = heights[point_plies]
         masks = {name: np.asarray(mask, dtype=bool) for name, mask in tool_plies.items()}
-        self.touched = {name: np.flatnonzero(masks[name]) for name in self.surfaces}
+        self.touched = {name: masks[name] for name in self.surfaces}
         self.start = {name: float(heights[np.unique(point_plies[masks[name]])].max(
             initial=0.0)) for name in self.moving if name in masks}
 
@@ -90,9 +90,8 @@ class ToolContact(PointContribution):
         mask (P,)}). A point a tool stops touching forgets its friction memory there (it
         slides free of the tool); the moving tools keep their start."""
         for name, mask in tool_plies.items():
-            mask = np.asarray(mask, dtype=bool)
-            self.touched[name] = np.flatnonzero(mask)
-            self.elastic_slip[name][~mask] = 0.0
+            self.touched[name] = np.asarray(mask, dtype=bool)
+            self.elastic_slip[name][~self.touched[name]] = 0.0
 
     def setup(self, reference_points):
         super().setup(reference_points)
@@ -170,10 +169,8 @@ class ToolContact(PointContribution):
                  **{f"offset_{k}": v for k, v in self.committed_offsets.items()},
                  **{f"elastic_slip_{k}": v for k, v in self.elastic_slip.items()}}
         if self.touched is not None:        # a stack: the points each tool touches
-            for name, touched in self.touched.items():
-                mask = np.zeros(len(self.committed_u))
-                mask[touched] = 1.0
-                state[f"touches_{name}"] = mask
+            for name, mask in self.touched.items():
+                state[f"touches_{name}"] = mask.astype(float)
         if self.holder_control is not None:
             state["holder_target"] = np.array(self.holder_control.target)
         return state
@@ -185,6 +182,6 @@ class ToolContact(PointContribution):
             self.committed_offsets[k] = np.array(state[f"offset_{k}"], copy=True)
             self.elastic_slip[k] = np.array(state[f"elastic_slip_{k}"], copy=True)
             if self.touched is not None and f"touches_{k}" in state:
-                self.touched[k] = np.flatnonzero(np.asarray(state[f"touches_{k}"]) > 0.5)
+                self.touched[k] = np.asarray(state[f"touches_{k}"]) > 0.5
         if self.holder_control is not None:
             self.holder_control.target = float(state["holder_target"])
