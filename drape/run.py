@@ -46,8 +46,8 @@ def add_arguments(parser) -> None:
                         help="print nothing but errors (no progress, no summary line)")
     again = parser.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true",
-                       help="continue from the checkpoint in the results folder (same config, "
-                            "--set values and number of ranks)")
+                       help="continue from the checkpoint in the results folder (same config "
+                            "and --set values; any number of ranks)")
     again.add_argument("--overwrite", action="store_true",
                        help="start over in a results folder that already holds results")
 

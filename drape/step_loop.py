@@ -164,8 +164,11 @@ class StepLoop:
         self.start = self.checkpoints.load() if resume else None   # (step, t, dt)
         if self.start is not None:
             rewind_outputs(folder, self.records, self.start[1], comm)
+            ranks = self.checkpoints.saved_ranks
             self.say(f"drape run: resuming from the checkpoint of step {self.start[0]} "
-                     f"(t = {self.start[1]:.6g})")
+                     f"(t = {self.start[1]:.6g})"
+                     + (f", written by {ranks} rank(s), on {comm.size}" if ranks != comm.size
+                        else ""))
         cell_fields = {name: field for part in self.parts
                        for name, field in part.cell_fields.items()}
         extra_fields = self.output_fields()
@@ -178,6 +181,8 @@ class StepLoop:
         self.writer = self.disk.write(FIELDS_FILE, lambda: ResultsWriter(
             folder, self.problem, xdmf=output.xdmf, xdmf_every=output.xdmf_every,
             snapshot=output.snapshot, append=self.start is not None,
+            resumed_from_ranks=(self.checkpoints.saved_ranks if self.start is not None
+                                else None),
             extra_cell_fields=cell_fields or None, extra_fields=extra_fields),
             root_only=False, fields=True)
 

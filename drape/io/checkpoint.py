@@ -14,11 +14,14 @@ The values are gathered to rank 0 into one file, each node's and cell's under a 
 does not depend on the partition (:class:`drape.io.layout.Layout`: gmsh's node index,
 DOLFINx's original cell index); a resume finds its nodes and cells there by number and checks
 their coordinates (to 1e-8 of the blank's size): another mesh is an
-:class:`~drape.errors.InputError`, another partition is not. The number of ranks must be the
-same (the resumed run then gets the same partition, drape.fe.mesh, and continues with the same
-numbers). The file is written to a temporary name and renamed (:mod:`drape.io.atomic`), so a
-kill or a full disk while writing leaves the previous checkpoint intact. Resuming rewinds the
-folder's other files to the checkpoint: :func:`drape.io.rewind.rewind_outputs`.
+:class:`~drape.errors.InputError`, another partition or number of ranks is not. On the same
+number of ranks the resumed run gets the same partition (drape.fe.mesh) and continues with the
+same numbers; on another, it continues as a run on that number of ranks would (1 rank and 2
+agree to round-off), and its fields refer to the mesh written again
+(:class:`drape.io.writer.ResultsWriter`'s ``resumed_from_ranks``). The file is written to a
+temporary name and renamed (:mod:`drape.io.atomic`), so a kill or a full disk while writing
+leaves the previous checkpoint intact. Resuming rewinds the folder's other files to the
+checkpoint: :func:`drape.io.rewind.rewind_outputs`.
 """
 
 from __future__ import annotations
@@ -206,8 +209,7 @@ class Checkpoints:
     def load(self):
         """Collective: read the checkpoint into the problem, the ledger and the records;
         returns the step, t and next step size to continue from. InputError (on every rank)
-        if there is no usable checkpoint, the config, material or ranks differ, or the mesh
-        does."""
+        if there is no usable checkpoint, the config or material differ, or the mesh does."""
         meta = self._shared_meta()
         with np.load(self.path) as data:
             saved = {k: data[k] for k in data.files if k != "meta"}
@@ -228,6 +230,8 @@ class Checkpoints:
         ledger.f, ledger.g = ledger_f, ledger_g
         self.records[:] = [self.read_row(row) for row in meta["rows"]]
         self.saved_step = meta["step"]
+        #: the number of ranks of the run that wrote the checkpoint
+        self.saved_ranks = int(meta["ranks"])
         return meta["step"], meta["t"], meta["dt"]
 
     def _shared_meta(self) -> dict:
@@ -344,10 +348,6 @@ class Checkpoints:
         if meta.get("version") != VERSION:
             raise InputError("the checkpoint is of another drape version", source=str(self.path),
                              value=meta.get("version"), expected=f"version {VERSION}")
-        if meta["ranks"] != self.comm.size:
-            raise InputError(f"the checkpoint was written by {meta['ranks']} rank(s), this run "
-                             f"has {self.comm.size}", source=str(self.path), key="--resume",
-                             expected=f"mpirun -n {meta['ranks']} (the same number of ranks)")
         changed = differences(meta["signature"], self.signature)
         if changed:
             raise InputError("the config or material differs from the checkpoint's: "

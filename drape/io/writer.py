@@ -29,15 +29,19 @@ SNAPSHOT_FILE = "result.npz"
 class ResultsWriter:
     def __init__(self, folder: Path, problem, *, xdmf: bool = True, xdmf_every: int = 1,
                  snapshot: str = "final", append: bool = False,
+                 resumed_from_ranks: int | None = None,
                  extra_cell_fields: dict | None = None, extra_fields=None):
         """``append``: continue the files of a resumed run (rewound to its checkpoint by
-        :func:`drape.io.rewind.rewind_outputs`) instead of starting them.
+        :func:`drape.io.rewind.rewind_outputs`) instead of starting them;
+        ``resumed_from_ranks`` the number of ranks that wrote the checkpoint (its fields refer
+        to a mesh of that partition: on another number of ranks the mesh is written again,
+        :meth:`_mesh_for_this_partition`).
         ``extra_cell_fields``: {name: function returning one value per local cell}, written
         as DG0 fields next to the law's (e.g. the contact pressure of a forming job).
         ``extra_fields``: an object with ``functions`` ({name: DOLFINx Function}) and
         ``update()``, called before each write (a stack's
         :class:`~drape.forming.stack_reports.StackFields`), its functions written too."""
-        from dolfinx import fem, io
+        from dolfinx import fem
 
         self.folder = Path(folder)
         self.problem = problem
@@ -64,15 +68,49 @@ class ResultsWriter:
         n = problem.n_cells
         self._dg0 = W0.dofmap.list.array[:n]
         self._dg3 = W3.dofmap.list.array[:n]
+        #: the XDMF grid of the mesh this run's fields refer to (DOLFINx's default: the first)
+        self.mesh_xpath = "/Xdmf/Domain/Grid[@GridType='Uniform'][1]"
         if self.xdmf and not append:
-            stream = io.XDMFFile(self.comm, str(self.folder / FIELDS_FILE), "w")
-            try:
-                stream.write_mesh(msh)
-                stream.close()
-            except RuntimeError:
-                _abandon(stream)
-                raise
+            self._write_mesh("w")
+        elif self.xdmf:
+            self._mesh_for_this_partition(resumed_from_ranks)
         self.remember_fields()
+
+    def _write_mesh(self, mode: str, name: str | None = None) -> None:
+        """The mesh into fields.xdmf/.h5 (``mode`` "w" or "a"), under ``name`` if given."""
+        from dolfinx import io
+        msh = self.problem.mesh
+        stream = io.XDMFFile(self.comm, str(self.folder / FIELDS_FILE), mode)
+        default, msh.name = msh.name, name or msh.name
+        try:
+            stream.write_mesh(msh)
+            stream.close()
+        except RuntimeError:
+            _abandon(stream)
+            raise
+        finally:
+            msh.name = default
+
+    def _mesh_for_this_partition(self, resumed_from_ranks: int | None) -> None:
+        """A resumed run's fields are written in its partition's order of nodes and cells,
+        which is the same only on the same number of ranks. So on another number M of
+        ranks they refer to the mesh written again as grid ``mesh-r<M>`` (once per M: a
+        later resume on M ranks finds it); on the checkpoint's number, to that grid if there
+        is one, else to the first (the interrupted run's)."""
+        name = f"mesh-r{self.comm.size}"
+        path = self.folder / FIELDS_FILE
+        found = None
+        if self.comm.rank == 0 and path.is_file():
+            import xml.etree.ElementTree as ET
+            found = any(grid.get("Name") == name for grid in ET.parse(path).getroot().iter("Grid"))
+        found = self.comm.bcast(found, root=0)
+        if found is None:           # no XDMF to continue (written without fields so far)
+            return
+        if not found and resumed_from_ranks not in (None, self.comm.size):
+            self._write_mesh("a", name)
+            found = True
+        if found:
+            self.mesh_xpath = f"/Xdmf/Domain/Grid[@Name='{name}']"
 
     # --- per step ---------------------------------------------------------------------------------
     def write_step(self, record, t: float, *, last: bool = False) -> None:
@@ -155,11 +193,9 @@ class ResultsWriter:
         self.update_cell_fields()
         stream = io.XDMFFile(self.comm, str(self.folder / FIELDS_FILE), "a")
         try:
-            stream.write_function(self.problem.u, t)
-            for function in self.cell_fields.values():
-                stream.write_function(function, t)
-            for function in self.extra_functions():
-                stream.write_function(function, t)
+            for function in [self.problem.u, *self.cell_fields.values(),
+                             *self.extra_functions()]:
+                stream.write_function(function, t, self.mesh_xpath)
             stream.close()
         except RuntimeError:
             _abandon(stream)
