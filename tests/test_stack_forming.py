@@ -655,17 +655,23 @@ def test_one_rank_equals_two_ranks(two_plies, tmp_path):
 
 
 @pytest.mark.two_ranks
-def test_a_resumed_stack_run_equals_the_uninterrupted_one(two_plies):
+@pytest.mark.parametrize("stopped_on", ["the same ranks", "one rank"])
+def test_a_resumed_stack_run_equals_the_uninterrupted_one(two_plies, stopped_on):
     """Stopped after step 2 and resumed from its checkpoint (the ply-ply contact's friction
     memory, accumulated slip and friction work with the tools' state), the run ends where the
-    uninterrupted one did, to 1e-8, on 1 rank and on 2."""
+    uninterrupted one did, to 1e-8: on 1 rank and on 2; and stopped on 1 rank (COMM_SELF),
+    resumed on 2 (the checkpoint is keyed by gmsh's numbers, not by the partition; 1 rank and
+    2 agree to round-off, test_one_rank_equals_two_ranks). Steps, forces, the plies' shear,
+    the contact's memory, slip and work."""
     from mpi4py import MPI
 
     from drape.job import load_job
     from drape.run import run_job
     comm = MPI.COMM_WORLD
+    if stopped_on == "one rank" and comm.size < 2:
+        pytest.skip("1 rank, then 2: run under mpirun -n 2")
     root, path, job, full, problem, _ = two_plies
-    folder = root / "stopped"
+    folder = root / ("stopped" if stopped_on == "the same ranks" else "moved")
 
     class Stop(Exception):
         pass
@@ -675,8 +681,11 @@ def test_a_resumed_stack_run_equals_the_uninterrupted_one(two_plies):
             raise Stop
 
     job = load_job(path, overrides=SMALL + ["output.checkpoint_every=1"])
-    with pytest.raises(Stop):
-        run_job(job, comm, output=str(folder), on_step=stop_after_2)
+    first = comm if stopped_on == "the same ranks" else MPI.COMM_SELF
+    if first is comm or comm.rank == 0:
+        with pytest.raises(Stop):
+            run_job(job, first, output=str(folder), on_step=stop_after_2)
+    comm.barrier()
     parts = {}
     resumed = run_job(job, comm, output=str(folder), resume=True,
                       on_start=lambda run: parts.setdefault("problem", run.problem))
@@ -692,49 +701,6 @@ def test_a_resumed_stack_run_equals_the_uninterrupted_one(two_plies):
         assert np.abs(again.accumulated_slip[i] - before.accumulated_slip[i]).max() < bound
     work = [comm.allreduce(float(c.friction_work.sum())) for c in (again, before)]
     assert work[0] == pytest.approx(work[1], rel=10 * bound, abs=1e-12)
-
-
-@pytest.mark.two_ranks
-def test_a_stack_stopped_on_one_rank_resumes_on_two(two_plies):
-    """Stopped after step 2 on 1 rank (COMM_SELF) and resumed on 2: the checkpoint is keyed by
-    gmsh's numbers, not by the partition, so the run ends as the uninterrupted 2-rank one, to
-    the 1e-8 within which 1 rank and 2 agree (test_one_rank_equals_two_ranks): steps, forces,
-    the plies' shear, the ply contact's friction memory and accumulated slip."""
-    from mpi4py import MPI
-
-    from drape.job import load_job
-    from drape.run import run_job
-    comm = MPI.COMM_WORLD
-    if comm.size < 2:
-        pytest.skip("1 rank, then 2: run under mpirun -n 2")
-    root, path, _, full, problem, _ = two_plies
-    folder = root / "moved"
-
-    class Stop(Exception):
-        pass
-
-    def stop_after_2(record, _):
-        if record.step == 2:
-            raise Stop
-
-    job = load_job(path, overrides=SMALL + ["output.checkpoint_every=1"])
-    if comm.rank == 0:
-        with pytest.raises(Stop):
-            run_job(job, MPI.COMM_SELF, output=str(folder), on_step=stop_after_2)
-    comm.barrier()
-    parts = {}
-    resumed = run_job(job, comm, output=str(folder), resume=True,
-                      on_start=lambda run: parts.setdefault("problem", run.problem))
-    bound = 1e-8
-    assert [r.t for r in resumed.rows] == [r.t for r in full.rows]
-    for a, b in zip(resumed.rows, full.rows):
-        for key in ("punch_force", "holder_force", "max_shear_angle_deg"):
-            assert a.row()[key] == pytest.approx(b.row()[key], rel=bound, abs=1e-10), (a.step,
-                                                                                       key)
-    again, before = parts["problem"].ply_contact, problem.ply_contact
-    for i in range(len(before.memory)):     # mm; the slips are of 0.01-0.1 mm
-        assert np.abs(again.memory[i] - before.memory[i]).max() < 0.1 * bound
-        assert np.abs(again.accumulated_slip[i] - before.accumulated_slip[i]).max() < bound
     shear = ply_points(parts["problem"])
     for k, (xy, gamma) in ply_points(problem).items():
         assert np.array_equal(shear[k][0], xy)
