@@ -14,7 +14,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from conftest import CONFIGS, HEMISPHERE_SHORT, SMALL_HEMISPHERE, SMALL_SQUARE
-from fe_helpers import central_difference, residual
+from fe_helpers import central_difference, mirror_images, residual
 
 SHORT = HEMISPHERE_SHORT
 #: 5 mm in fixed 0.5 mm steps, no fields written
@@ -236,18 +236,6 @@ def test_draw_in_between_two_nodes_is_the_edge_interpolated_there(comm):
 def point_fields(folder):
     data = np.load(folder / "result.npz")
     return data["point_xy"], data["gamma_t_deg"]
-
-
-def mirror_images(xy, gamma):
-    """transform -> gamma at the images of the points xy under it (a symmetry of the mesh: each
-    image is a point, within 1e-6 mm)."""
-    tree = cKDTree(xy)
-
-    def mirrored(transform):
-        d, j = tree.query(transform(xy))
-        assert d.max() < 1e-6
-        return gamma[j]
-    return mirrored
 
 
 @pytest.mark.two_ranks

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import CONFIGS
+from fe_helpers import mirror_images
 
 #: the small hemisphere (tests/test_blanks.py), the punch 3 mm down in 1 mm steps
 SMALL = ["tools.hemisphere.punch_radius=30", "tools.hemisphere.die_opening_radius=35",
@@ -264,8 +265,12 @@ ROUND_OFF = 1e-10
 
 def equal_to_round_off(a, b, bound: float, scale: float = 0.0) -> bool:
     """a == b for strings and integers; floats (or float strings) within ``bound`` of the
-    larger of their size and ``scale``; lists and dicts item by item."""
+    larger of their size and ``scale``; lists item by item; dicts item by item, the scale at
+    least the largest float among the items (a summary's block: a corner's draw-in of 1e-5 mm
+    carries the round-off of the mid-side's 0.1 mm)."""
     if isinstance(a, dict):
+        floats = [abs(v) for v in (*a.values(), *b.values()) if isinstance(v, float)]
+        scale = max([scale, *floats])
         return a.keys() == b.keys() and all(equal_to_round_off(a[k], b[k], bound, scale)
                                              for k in a)
     if isinstance(a, (list, tuple)):
@@ -313,7 +318,10 @@ def test_a_one_ply_stack_is_todays_job_to_round_off(one_ply_runs):
     summaries = [json.loads((f / "summary.json").read_text()) for f in (a, b)]
     for s in summaries:
         s.pop("wall_time_s")
-    assert equal_to_round_off(summaries[0], summaries[1], bound)
+    differ = [k for k in summaries[0] if not equal_to_round_off(summaries[0][k],
+                                                                summaries[1].get(k), bound)]
+    assert summaries[0].keys() == summaries[1].keys() and not differ, (
+        differ, [(summaries[0][k], summaries[1][k]) for k in differ])
     with np.load(a / "result.npz") as one, np.load(b / "result.npz") as two:
         assert one.files == two.files
         for name in one.files:
@@ -604,21 +612,22 @@ def test_the_interface_carries_what_the_die_carries_and_reports_per_ply(two_plie
 @pytest.mark.two_ranks
 def test_a_0_90_stack_keeps_the_hemispheres_square_symmetry(two_plies):
     """Each ply of a [0/90, 0/90] stack: mirrored in the diagonal (x <-> y swaps warp and
-    weft, gamma unchanged) and in a yarn axis (gamma -> -gamma as far as the law is odd: 5 %,
-    as tests/test_forming.py). The diagonal holds to 2 % of the peak, not to Newton's
-    tolerance as for one ply: the ply-ply contact's master surface splits each quadrilateral
-    along the diagonal its DOLFINx vertex order picks, which the mirror does not map onto
-    itself (measured: 0.8 % at 3 mm)."""
+    weft, gamma unchanged), turned half about z (gamma unchanged) and mirrored in a yarn axis
+    (gamma -> -gamma as far as the law is odd). Not to Newton's tolerance as for one ply: a
+    slave node over a master vertex (everywhere on plies meshed alike) is tied between the
+    triangles round it, and for a node on an axis the mirror swaps the two nearest the
+    origin, which the tie rule cannot both pick (PlyContact._closest). Measured 0.10 %, 0.11 %
+    and 0.13 % of the peak (0.65 deg) at 3 mm; bounds 0.5 %, 0.5 %, 1 %. With ties won in
+    (ply, x, y) order and the quadrilaterals split by vertex order, the half turn was off by
+    4.0 % and the axis by 1.9 %."""
     *_, problem, _ = two_plies
     for k, (xy, gamma) in ply_points(problem).items():
         top = np.abs(gamma).max()
         assert top > 0.05
-        order = np.lexsort((np.round(xy[:, 0], 6), np.round(xy[:, 1], 6)))
-        assert np.array_equal(np.round(xy[order][:, ::-1], 6), np.round(xy, 6))
-        assert np.abs(gamma[order] - gamma).max() < 0.02 * top, k       # (y, x) against (x, y)
-        flipped = np.lexsort((np.round(xy[:, 1], 6), np.round(-xy[:, 0], 6)))
-        assert np.array_equal(np.round(xy[flipped] * [-1, 1], 6), np.round(xy, 6))
-        assert np.abs(gamma[flipped] + gamma).max() < 0.05 * top, k     # (-x, y) against (x, y)
+        images = mirror_images(xy, gamma)
+        assert np.abs(images(lambda p: p[:, ::-1]) - gamma).max() < 0.005 * top, k   # (y, x)
+        assert np.abs(images(lambda p: -p) - gamma).max() < 0.005 * top, k           # (-x, -y)
+        assert np.abs(images(lambda p: p * [-1, 1]) + gamma).max() < 0.01 * top, k   # (-x, y)
 
 
 @pytest.mark.two_ranks
