@@ -4,6 +4,10 @@ own numbers.
 
     pvpython paraview_dump.py OUT.json xdmf FILE.xdmf
     pvpython paraview_dump.py OUT.json vtu FILE.vtu
+    pvpython paraview_dump.py OUT.json view RESULTS
+
+``view``: the one grid `drape view` draws at the last load factor (drape/paraview_view.py's
+reader and merge of the XDMF's blocks): its points and displacement.
 
 For an XDMF file, with each of Xdmf3ReaderS and XDMFReader: the time values, and for every
 time and every block (dolfinx 0.5 writes one grid per function) the arrays by name with their
@@ -78,8 +82,20 @@ def dump_vtu(path):
     return {"mesh": mesh(grid), "fields": arrays(grid)}
 
 
+def dump_view(results):
+    import os
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "drape"))
+    import paraview_view
+    reader, _, t = paraview_view.open_fields(results, None, True)
+    merged = paraview_view.merged_fields(reader)
+    merged.UpdatePipeline(t)
+    grid = sm.Fetch(merged)
+    return {"t": t, "points": vtk_to_numpy(grid.GetPoints().GetData()).tolist(),
+            "displacement": vtk_to_numpy(grid.GetPointData().GetArray("displacement")).tolist()}
+
+
 if __name__ == "__main__":
     target, kind, path = sys.argv[1:4]
-    result = dump_xdmf(path) if kind == "xdmf" else dump_vtu(path)
+    result = {"xdmf": dump_xdmf, "vtu": dump_vtu, "view": dump_view}[kind](path)
     with builtins.open(target, "w") as stream:
         json.dump(result, stream)

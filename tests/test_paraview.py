@@ -256,6 +256,30 @@ def test_drape_view_screenshot_marks_the_locking_angle(paraview, runs, tmp_path)
     assert counts[25.0] > 5000 and counts[40.0] == 0, counts
 
 
+def test_drape_view_draws_a_run_resumed_on_other_ranks(paraview, tmp_path):
+    """A run stopped on 1 rank and resumed on 2 writes its later steps in the 2-rank order of
+    nodes, on the mesh written again (grid mesh-r2): `drape view` draws the displacement at the
+    points it belongs to. Its merged grid at the last step: points and displacement equal
+    result.npz's (float32). With the steps referred to the first grid's mesh (1 rank's order
+    of nodes) the view's displacement was 16.5 mm off."""
+    from test_fe_checkpoint import SHORT, check_stopped_folder, run_and_terminate
+    folder = tmp_path / "moved"
+    rc, err = run_and_terminate(folder, 1)
+    check_stopped_folder(folder, rc, err)
+    done = drape("run", CONFIGS / "bias_extension.toml", "--output", folder, *SHORT, "--resume",
+                 ranks=2)
+    assert done.returncode == 0, done.stderr
+    assert "Grid Name=\"mesh-r2\"" in (folder / "fields.xdmf").read_text()
+    seen = dump(paraview, tmp_path / "view.json", "view", folder)
+    result = np.load(folder / "result.npz")
+    assert seen["t"] == pytest.approx(1.0)
+    points, u = np.array(seen["points"])[:, :2], np.array(seen["displacement"])
+    order = np.lexsort((points[:, 1], points[:, 0]))
+    scale = np.abs(result["u"]).max()
+    assert np.abs(points[order] - result["node_xy"]).max() < 1e-4
+    assert np.abs(u[order] - result["u"]).max() < F32 * scale
+
+
 def test_drape_view_bad_input(tmp_path, monkeypatch, capsys):
     from drape import cli, view
     assert cli.main(["view", str(tmp_path / "missing")]) == 2
