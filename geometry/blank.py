@@ -13,7 +13,7 @@ Patterns (yarn angle theta, degrees, warp G1 = (cos theta, sin theta)):
   squares along the yarns everywhere except one row of cells along the outline, where the
   lattice's half-squares are cut into three quadrilaterals each. The outline must fit the
   lattice: length/width a ratio of small integers.
-* ``aligned`` disc or polygon, any theta: the *clipped lattice* (``lattice.clipped_lattice``):
+* ``aligned`` disc or polygon, any theta: the *clipped lattice* (``clipped_lattice.py``):
   yarn-aligned squares wherever they lie half an element inside the outline, and one strip of
   quadrilaterals from their staircase to the outline (``docs/blanks.md``).
 * ``free``: gmsh's unstructured mesh (Frontal-Delaunay; quadrilaterals by Blossom recombination),
@@ -31,7 +31,8 @@ import math
 import numpy as np
 
 from drape.errors import InputError
-from drape.geometry.lattice import clipped_lattice, diamond_lattice, split_quads
+from drape.geometry.clipped_lattice import clipped_lattice
+from drape.geometry.lattice import diamond_lattice, split_quads
 from drape.geometry.outline import polygon_area, polygon_outline
 
 BLANK = "blank"

@@ -5,10 +5,13 @@ the forming checks ask of it (numpy only; mm).
 :class:`~drape.errors.InputError` naming the key); :func:`inside_polygon`,
 :func:`closest_on_polyline` and :func:`point_at` answer, for many points at once, whether they
 lie inside, where their closest point on the outline is (by arc length) and which point has a
-given arc length.
+given arc length; :class:`Outline` asks the same of a polygon or a circle, and where a ray
+from inside meets it.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -94,3 +97,72 @@ def point_at(xy, s):
     k = np.minimum(np.searchsorted(ends, s, side="right"), len(xy) - 1)
     t = (s - (ends[k] - length[k])) / length[k]
     return xy[k] + t[:, None] * d[k]
+
+
+def cross_z(u, v):
+    """The z component of the cross product of 2-D vectors (..., 2)."""
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+class Outline:
+    """The closed outline a lattice is clipped to: a polygon (n, 2), counter-clockwise, or a
+    circle of radius ``circle`` about ``centre`` (``polygon`` then its fine polygon, for the
+    lattice's extent only). Arc-length parameters run counter-clockwise from the polygon's
+    vertex 0 (the circle's point on +x)."""
+
+    def __init__(self, polygon: np.ndarray, centre: np.ndarray, circle: float | None):
+        self.polygon, self.centre, self.circle = polygon, centre, circle
+        if circle is not None:
+            self.total = 2 * math.pi * circle
+        else:
+            self.total = float(np.sum(np.linalg.norm(np.roll(polygon, -1, axis=0) - polygon,
+                                                     axis=1)))
+
+    def closest(self, q):
+        """Distance (P,) of points q (P, 2) to the outline and the arc length of their
+        closest points on it."""
+        if self.circle is None:
+            return closest_on_polyline(self.polygon, q)
+        centre, circle = self.centre, self.circle
+        return (circle - np.linalg.norm(q - centre, axis=1),
+                circle * np.mod(np.arctan2(q[:, 1] - centre[1], q[:, 0] - centre[0]),
+                                2 * math.pi))
+
+    def inside(self, q) -> np.ndarray:
+        if self.circle is None:
+            return inside_polygon(self.polygon, q)
+        return np.linalg.norm(q - self.centre, axis=1) < self.circle
+
+    def points_at(self, s) -> np.ndarray:
+        """The outline's points (P, 2) at arc lengths s (P,)."""
+        if self.circle is None:
+            return point_at(self.polygon, s)
+        circle = self.circle
+        return self.centre + circle * np.column_stack([np.cos(s / circle), np.sin(s / circle)])
+
+    def along_ray(self, q, direction) -> np.ndarray:
+        """Arc lengths (P,) of the outline's first points on the rays from q (P, 2) inside it
+        along ``direction`` (P, 2)."""
+        d = direction / np.linalg.norm(direction, axis=1)[:, None]
+        if self.circle is not None:
+            r = q - self.centre
+            b = np.sum(r * d, axis=1)
+            t = -b + np.sqrt(b * b - np.sum(r * r, axis=1) + self.circle ** 2)
+            return self.closest(q + t[:, None] * d)[1]
+        e = np.roll(self.polygon, -1, axis=0) - self.polygon
+        r = self.polygon[None, :, :] - q[:, None, :]                     # (P, n, 2)
+        denominator = cross_z(d[:, None, :], e[None, :, :])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = cross_z(r, e[None, :, :]) / denominator
+            u = cross_z(r, d[:, None, :]) / denominator
+        t = np.where((t > 0) & (u >= 0) & (u <= 1), t, np.inf)
+        k = np.argmin(t, axis=1)
+        return self.vertex_lengths()[k] + u[np.arange(len(q)), k] * np.linalg.norm(e, axis=1)[k]
+
+    def vertex_lengths(self) -> np.ndarray | None:
+        """Arc lengths of the polygon's vertices (None for a circle: it has none)."""
+        if self.circle is not None:
+            return None
+        polygon = self.polygon
+        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.roll(polygon, -1, axis=0)
+                                                               - polygon, axis=1))[:-1]])
