@@ -93,3 +93,61 @@ def test_plies_wrapped_round_a_cylinder_are_covered_as_flat_ones(radius):
     flat = StackExposure(nodes).masks(nodes.reference, plies, points)
     wrapped = StackExposure(nodes).masks(wrap(nodes.reference), plies, wrap(points))
     assert np.array_equal(flat[0], wrapped[0]) and np.array_equal(flat[1], wrapped[1])
+
+
+# --- the stack as laid up (drape.forming.layup) ---------------------------------------------------
+
+def test_laid_heights_step_down_past_a_partial_ply_and_match_whole_plies_to_the_bit():
+    """Whole plies (100 mm squares, thicknesses 0.3, 0.2, 0.4): every node at
+    plies.ply_heights, bit for bit, and k + 1 plies in ply k's columns (itself included). A
+    40 mm patch between two squares: the bottom square at 0, the patch at (0.3 + 0.2)/2, the
+    top square at 0.25 + (0.2 + 0.4)/2 over the patch and within one of its elements (5 mm quads'
+    diagonal) of it, at (0.3 + 0.4)/2 on the bottom square farther out, with two plies in
+    those columns; the ply under each top node (layup.ply_under) is the patch, resp. the
+    bottom square, and the ply over each bottom node the patch, resp. the top square."""
+    from drape.forming.layup import laid_heights, ply_under
+    from drape.forming.plies import ply_heights
+    thicknesses = (0.3, 0.2, 0.4)
+    for sizes, whole in ((((100.0, 100.0),) * 3, True),
+                         (((100.0, 100.0), (40.0, 40.0), (100.0, 100.0)), False)):
+        nodes, _, _ = stack(*sizes)
+        xy, ply = nodes.reference[:, :2], nodes.ply
+        args = (xy, nodes.triangles, nodes.triangle_ply)
+        height, column = laid_heights(*args, thicknesses, xy, ply)
+        if whole:
+            assert np.array_equal(height, np.asarray(ply_heights(thicknesses))[ply])
+            assert np.array_equal(column, ply + 1)
+            continue
+        reach = 5.0 * np.sqrt(2.0)
+        gap = np.linalg.norm(np.maximum(np.abs(xy) - 20.0, 0.0), axis=1)    # to the patch
+        near = gap <= reach + 1e-9
+        top, bottom = ply == 2, ply == 0
+        assert (height[bottom] == 0.0).all() and np.allclose(height[ply == 1], 0.25)
+        assert np.allclose(height[top & near], 0.55) and np.allclose(height[top & ~near], 0.35)
+        assert (column[top & near] == 3).all() and (column[top & ~near] == 2).all()
+        under = ply_under(*args, 3, xy, ply)
+        over = ply_under(*args, 3, xy, ply, above=True)
+        assert np.array_equal(under[top], np.where(near[top], 1, 0))
+        assert np.array_equal(over[bottom], np.where(near[bottom], 1, 2))
+        assert (under[bottom] == -1).all() and (over[top] == -1).all()
+
+
+def test_the_ply_contact_bridges_plies_that_a_partial_ply_leaves_touching():
+    """The same patch between two squares: besides the four directions of the two
+    interfaces, two bridge the squares (top on bottom and bottom under top, counted to
+    interface 1, with its law), their slaves the squares' nodes with no patch between; whole
+    plies get no bridge."""
+    from drape.forming.ply_contact import FrictionLaw, PlyContact
+    laws = [FrictionLaw(0.2), FrictionLaw(0.3)]
+    args = ((0.3, 0.2, 0.4), laws, 1.0, 0.1, 0.01)
+    nodes, _, _ = stack((100.0, 100.0), (100.0, 100.0), (100.0, 100.0))
+    assert len(PlyContact(nodes, *args).directions) == 4
+    nodes, _, _ = stack((100.0, 100.0), (40.0, 40.0), (100.0, 100.0))
+    bridges = PlyContact(nodes, *args).directions[4:]
+    assert [(d.slave, d.master, d.sign, d.interface) for d in bridges] == [
+        (0, 2, -1.0, 1), (2, 0, 1.0, 1)]
+    assert all(d.law is laws[1] and d.offset == pytest.approx(0.35) for d in bridges)
+    gap = np.linalg.norm(np.maximum(np.abs(nodes.reference[:, :2]) - 20.0, 0.0), axis=1)
+    far = gap > 5.0 * np.sqrt(2.0) + 1e-9
+    assert np.array_equal(bridges[0].slaves, (nodes.ply == 0) & far)
+    assert np.array_equal(bridges[1].slaves, (nodes.ply == 2) & far)

@@ -203,7 +203,7 @@ def test_each_tool_touches_its_ply_at_its_height():
     xy = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0], [1.0, 0.0]])
     contact.setup(xy)
     plies = np.array([0, 0, 1, 1])
-    contact.set_plies(plies, (0.0, 0.3), {"die": plies == 0, "holder": plies == 1})
+    contact.set_plies(plies, np.array([0.0, 0.3])[plies], {"die": plies == 0, "holder": plies == 1})
     contact.offsets["holder"] = np.array([0.0, 0.0, 0.27])      # 0.01 into the top ply
     positions = np.column_stack([xy, np.full(4, -0.02)])             # 0.02 into the die
     f, _ = contact.evaluate(positions, positions * [0, 0, 1])
@@ -234,7 +234,7 @@ def test_the_die_pushes_each_exposed_point_at_its_plys_height():
     contact = ToolContact({"die": Plane()}, set(), 0.0, penalty=10.0, friction=0.0,
                           regularisation=0.01, cutoff=10.0)
     contact.setup(xy)
-    contact.set_plies(plies, (0.0, 0.3), {"die": from_below})
+    contact.set_plies(plies, np.array([0.0, 0.3])[plies], {"die": from_below})
     positions = np.column_stack([xy, np.full(4, -0.32)])   # the top ply 0.02 into the die
     f, _ = contact.evaluate(positions, positions * [0, 0, 1])
     assert f[:, 2] == pytest.approx([3.2, 3.2, 0.2, 0.0])   # 10 N/mm^3 x the penetration
@@ -436,6 +436,45 @@ def test_a_patch_on_top_leaves_the_holder_to_the_ply_below(tmp_path):
     assert force("holder", 1) == 0.0
     assert force("holder", 0) == pytest.approx(100.0, rel=0.02)
     assert force("punch", 1) > 0.0
+
+
+@pytest.mark.two_ranks
+def test_a_patch_between_two_plies_lets_them_touch_past_its_edge(tmp_path):
+    """A R 20 mm ±45 disc between two 140 mm squares (an interleaved patch, a drop-off),
+    pressed 3 mm. Before, the ply contact paired adjacent plies only and every ply lay flat at
+    its own height: under the holder the top square went through the bottom one (1.7 mm down)
+    and Newton stalled in the first step at any step size. Now the top square is laid on the
+    patch and, one element past its edge, on the bottom square (drape.forming.layup), and
+    touches the bottom square there (a bridge counted to interface 1): the run reaches 3 mm,
+    the holder's 100 N within 1 % at every step, all of it carried by the squares' contact
+    through the bridge; past the patch (r >= 30 mm) the top square's mid-surface stays above
+    the bottom one's by their half thicknesses less 1 % of h, and no pair penetrates."""
+    from mpi4py import MPI
+    from scipy.spatial import cKDTree
+
+    from drape.forming.stack_reports import interface_summaries
+    root = shared(tmp_path)
+    patch = ('[[plies]]\norientation = 45.0\nthickness = 0.3\nshape = "disc"\n'
+             "radius = 20.0\n")
+    if MPI.COMM_WORLD.rank == 0:
+        stack_job(root, [ply(), patch, ply()])
+    MPI.COMM_WORLD.barrier()
+    job, summary, problem = form(root / "stack.toml", root / "run")
+    assert summary.rows[-1].columns["stroke"] == pytest.approx(3.0)
+    for record in summary.rows[1:]:
+        assert record.columns["holder_force"] == pytest.approx(100.0, rel=0.01), record.step
+    interfaces = interface_summaries(problem, problem.comm)
+    assert interfaces[1]["bridges"] == [[0, 2]] and interfaces[0]["bridges"] == []
+    assert interfaces[1]["normal_force_N"] > 100.0
+    h = job.config.mesh.size
+    assert max(i["max_penetration_mm"] for i in interfaces) < 0.01 * h
+    nodes = problem.ply_contact.nodes
+    x = nodes.reference + problem.gather(problem.u)
+    bottom, top = (np.flatnonzero(nodes.ply == k) for k in (0, 2))
+    far = top[np.linalg.norm(nodes.reference[top, :2], axis=1) >= 30.0]
+    below = bottom[cKDTree(nodes.reference[bottom, :2]).query(nodes.reference[far, :2])[1]]
+    assert np.allclose(nodes.reference[below, :2], nodes.reference[far, :2])
+    assert (x[far, 2] - x[below, 2]).min() > THICKNESS - 0.01 * h
 
 
 def frictionless(root):

@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 from drape.fe.membrane import MembraneProblem
+from drape.forming.layup import laid_heights
 from drape.forming.ply_contact import DEFAULT_MARGIN, PlyContact, StackNodes, split_cells
 
 
@@ -89,10 +90,12 @@ class StackProblem(MembraneProblem):
         nodal_area = np.zeros(self.n_global)
         for ids, part_xy, part_ply, part_area, _, _ in parts:
             reference[ids, :2], ply[ids], nodal_area[ids] = part_xy, part_ply, part_area
-        reference[:, 2] = np.asarray(stack_mesh.heights)[ply]
         all_cells = np.vstack([p[4] for p in parts])
         all_cell_ply = np.concatenate([p[5] for p in parts])
         triangles, origin = split_cells(all_cells, reference[:, :2])
+        # each ply on the plies under it, or on the die past a partial ply's edge
+        reference[:, 2], _ = laid_heights(reference[:, :2], triangles, all_cell_ply[origin],
+                                          stack_mesh.thicknesses, reference[:, :2], ply)
         self._node_order = np.concatenate([p[0] for p in parts])
         return StackNodes(reference, ply, nodal_area, triangles, all_cell_ply[origin])
 

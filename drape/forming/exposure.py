@@ -16,10 +16,9 @@ Plain numpy and scipy on the stack's nodes in global numbering
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from drape.forming.ply_contact import StackNodes, closest_on_outline, triangle_outline
-from drape.forming.surfaces import closest_point_on_triangles
+from drape.forming.layup import closest_triangles
 
 
 class StackExposure:
@@ -36,31 +35,11 @@ class StackExposure:
         triangles = np.flatnonzero(self.nodes.triangle_ply == k)
         if not len(points) or not len(triangles):
             return np.zeros(len(points), dtype=bool)
-        corners = x_nodes[self.nodes.triangles[triangles]]
-        centroids = corners.mean(axis=1)
-        radius = np.linalg.norm(corners - centroids[:, None], axis=2).max()
-        tree = cKDTree(centroids)
-        # the closest triangle's centroid lies within the nearest centroid's distance plus
-        # a triangle's radius (that triangle is at most as far as its centroid)
-        nearest, _ = tree.query(points)
-        found = tree.query_ball_point(points, nearest + radius + 1e-9)
-        counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=len(found))
-        which = np.repeat(np.arange(len(points)), counts)
-        candidates = np.concatenate(found).astype(np.int64)
-        _, bary, squared = closest_point_on_triangles(points[which], corners[candidates, 0],
-                                                      corners[candidates, 1],
-                                                      corners[candidates, 2])
-        # per point its closest candidate (ties share the closest point, so either will do)
-        order = np.lexsort((squared, which))
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = which[order][1:] != which[order][:-1]
-        best = order[first]
-        triangle = triangles[candidates[best]]
-        past, _, _ = closest_on_outline(bary[best], self.outline_edges[triangle],
+        best, bary, _ = closest_triangles(x_nodes[self.nodes.triangles[triangles]], points)
+        triangle = triangles[best]
+        past, _, _ = closest_on_outline(bary, self.outline_edges[triangle],
                                         self.outline_vertices[triangle])
-        covered = np.empty(len(points), dtype=bool)
-        covered[which[best]] = ~past
-        return covered
+        return ~past
 
     def masks(self, x_nodes: np.ndarray, point_plies: np.ndarray, points: np.ndarray):
         """(exposed from above, exposed from below): which points (P, 3, mm; ``point_plies``

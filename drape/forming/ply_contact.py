@@ -93,7 +93,7 @@ class FrictionLaw:
 class StackNodes:
     """The stack's nodes and master triangles in global numbering (the same on every rank)."""
 
-    reference: np.ndarray     # (N, 3) reference position: X, Y and the ply's height (mm)
+    reference: np.ndarray     # (N, 3) reference position: X, Y and the laid-up height (mm)
     ply: np.ndarray           # (N,) the ply of each node
     area: np.ndarray          # (N,) lumped reference area of each node (mm²)
     triangles: np.ndarray     # (T, 3) node numbers, counter-clockwise seen from +z
@@ -110,6 +110,9 @@ class Direction:
     sign: float               # +1: the master lies below the slave, -1: above
     offset: float             # (t_slave + t_master) / 2, mm
     law: FrictionLaw
+    #: (N,) which of the slave ply's nodes take part (None: all): across a partial ply, those
+    #: with no ply between them and the master ply (:func:`drape.forming.layup.ply_under`)
+    slaves: object = None
 
 
 class PairForces(NamedTuple):
@@ -153,6 +156,28 @@ def split_cells(cells: np.ndarray, reference_xy: np.ndarray, dolfinx_quads: bool
     return triangles, origin
 
 
+def _bridges(nodes: StackNodes, thicknesses, laws) -> list[Direction]:
+    """The contact of plies that a partial ply between them leaves touching: ply k on ply
+    j < k - 1 where no ply lies between them (:func:`drape.forming.layup.ply_under`), both
+    directions, with the law of the interface under ply k (its underside's); counted to that
+    interface. None in a stack of whole plies."""
+    from drape.forming.layup import ply_under
+    n_plies = len(thicknesses)
+    xy = nodes.reference[:, :2]
+    args = (xy, nodes.triangles, nodes.triangle_ply, n_plies, xy, nodes.ply)
+    under, over = ply_under(*args), ply_under(*args, above=True)
+    out = []
+    for k in range(2, n_plies):
+        for j in range(k - 1):
+            up = (nodes.ply == k) & (under == j)
+            down = (nodes.ply == j) & (over == k)
+            if up.any() or down.any():
+                offset = 0.5 * (thicknesses[j] + thicknesses[k])
+                out.append(Direction(k - 1, j, k, -1.0, offset, laws[k - 1], down))
+                out.append(Direction(k - 1, k, j, +1.0, offset, laws[k - 1], up))
+    return out
+
+
 class PlyContact:
     """The contact of every interface of a stack, both directions, for the slave nodes this
     rank owns (``owned``, a boolean mask over the global nodes)."""
@@ -170,6 +195,7 @@ class PlyContact:
             offset = 0.5 * (thicknesses[k] + thicknesses[k + 1])
             self.directions.append(Direction(k, k, k + 1, -1.0, offset, law))
             self.directions.append(Direction(k, k + 1, k, +1.0, offset, law))
+        self.directions += _bridges(nodes, thicknesses, laws)
         self.step_duration = None
         #: per direction, the elastic slip (N, 3) each slave node held at the last converged
         #: step (friction's memory, as the tools' :class:`~drape.forming.press.ToolContact`)
@@ -224,7 +250,10 @@ class PlyContact:
         cannot be pressed before the next search."""
         x = self.nodes.reference + u
         for i, direction in enumerate(self.directions):
-            slaves = np.nonzero(self.owned & (self.nodes.ply == direction.slave))[0]
+            slaves = self.owned & (self.nodes.ply == direction.slave)
+            if direction.slaves is not None:
+                slaves &= direction.slaves
+            slaves = np.nonzero(slaves)[0]
             masters = np.nonzero(self.nodes.triangle_ply == direction.master)[0]
             if not len(slaves) or not len(masters):
                 empty = np.zeros(0, dtype=np.int64)

@@ -174,11 +174,13 @@ class Forming(JobPart):
             else:       # the holder presses the highest ply it reaches (exposed from above)
                 from mpi4py import MPI
                 under = under & self.tool_contact.touched["holder"]
-                highest = self.comm.allreduce(int(point_plies[under].max(initial=-1)),
-                                              op=MPI.MAX)
-                if highest >= 0:    # else no blank under the holder: HolderControl says so
-                    heights = problem.blank_mesh.heights
-                    opening, contacts = opening - float(heights[highest]), highest + 2
+                top = self.comm.allreduce(float(self._point_heights[under].max(initial=-1.0)),
+                                          op=MPI.MAX)
+                if top >= 0.0:      # else no blank under the holder: HolderControl says so
+                    at_top = under & (self._point_heights == top)
+                    column = self.comm.allreduce(int(self._column_plies[at_top].max(initial=0)),
+                                                 op=MPI.MAX)
+                    opening, contacts = opening - top, column + 1
             area = self.comm.allreduce(float(self.areas[under].sum()))
             self.holder = HolderControl(self.process.holder_force, area, self.penalty,
                                         self.smoothing, opening, contacts)
@@ -188,10 +190,11 @@ class Forming(JobPart):
         """A stack: the die touches every ply where no ply below covers it (the bottom ply,
         and an upper ply where it reaches past those below), the punch and the holder every
         ply where no ply above covers it (the top ply, and a lower one past a partial top
-        ply), each ply seen at its height (:class:`drape.forming.exposure.StackExposure`,
-        followed after every converged step by :meth:`follow_exposure`). Returns each contact
-        point's ply (None for one blank)."""
+        ply; :class:`drape.forming.exposure.StackExposure`, followed after every converged
+        step by :meth:`follow_exposure`), each point seen at its laid-up height
+        (:mod:`drape.forming.layup`). Returns each contact point's ply (None for one blank)."""
         from drape.forming.exposure import StackExposure
+        from drape.forming.layup import laid_heights
         mesh = problem.blank_mesh
         self.exposure = None
         if getattr(mesh, "n_plies", 1) < 2:
@@ -199,9 +202,12 @@ class Forming(JobPart):
         point_plies = np.repeat(mesh.cell_plies()[: problem.n_cells], self.n_extra)
         self.exposure = StackExposure(problem.ply_contact.nodes)
         self._point_plies = point_plies
-        self._point_heights = np.asarray(mesh.heights, dtype=float)[point_plies]
-        self.tool_contact.set_plies(point_plies, mesh.heights,
-                                    self._exposed(problem.ply_contact.nodes.reference))
+        nodes = problem.ply_contact.nodes
+        self._point_heights, self._column_plies = laid_heights(
+            nodes.reference[:, :2], nodes.triangles, nodes.triangle_ply, mesh.thicknesses,
+            self.tool_contact.reference_points[:, :2], point_plies)
+        self.tool_contact.set_plies(point_plies, self._point_heights,
+                                    self._exposed(nodes.reference))
         return point_plies
 
     def _exposed(self, x_nodes) -> dict:

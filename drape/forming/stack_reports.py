@@ -92,7 +92,9 @@ def interface_summaries(problem, comm) -> list[dict]:
     """Per interface (interface k between plies k and k + 1), over every rank: the nodes in
     contact (both plies' nodes that carry pressure), the contact area they carry (mm²), the
     normal force (N) and the largest penetration (mm) of the last evaluation, the friction
-    work up to the last commit (N mm) and the largest accumulated slip of a node (mm)."""
+    work up to the last commit (N mm) and the largest accumulated slip of a node (mm). Where a
+    partial ply leaves plies j and k + 1 touching, that contact counts to interface k, which
+    lists the pair under ``bridges``."""
     from mpi4py import MPI
     contact = problem.ply_contact
     report = contact.report()
@@ -103,7 +105,9 @@ def interface_summaries(problem, comm) -> list[dict]:
                               "friction_work": float(contact.friction_work[k])})
         slip = max((float(contact.accumulated_slip[i].max(initial=0.0))
                     for i, d in enumerate(contact.directions) if d.interface == k), default=0.0)
-        out.append({"interface": k, "plies": [k, k + 1],
+        bridges = sorted({(d.slave, d.master) if d.slave < d.master else (d.master, d.slave)
+                          for d in contact.directions if d.interface == k and d.slaves is not None})
+        out.append({"interface": k, "plies": [k, k + 1], "bridges": [list(b) for b in bridges],
                     "nodes_in_contact": int(comm.allreduce(mine["nodes_in_contact"])),
                     "contact_area_mm2": comm.allreduce(mine["contact_area"]),
                     "normal_force_N": comm.allreduce(mine["normal_force"]),
@@ -156,13 +160,13 @@ class StackFields:
         for i, direction in enumerate(contact.directions):
             prefix = f"interface{direction.interface}_"
             slaves = contact.last("slaves", i).astype(np.int64)
-            if len(slaves):
+            if len(slaves):     # a node may be the slave of a bridge too (PlyContact)
                 weight, pressure = contact.last("weight", i), contact.last("pressure", i)
-                out[prefix + "pressure"][slaves] = pressure * weight / (0.5 * area[slaves])
-                out[prefix + "slip"][slaves] = np.linalg.norm(
+                out[prefix + "pressure"][slaves] += pressure * weight / (0.5 * area[slaves])
+                out[prefix + "slip"][slaves] += np.linalg.norm(
                     contact.last("slip_increment", i), axis=1)
             on_slave_ply = contact.nodes.ply == direction.slave
-            out[prefix + "accumulated_slip"][on_slave_ply] = \
+            out[prefix + "accumulated_slip"][on_slave_ply] += \
                 contact.accumulated_slip[i][on_slave_ply]
         return out
 

@@ -71,19 +71,19 @@ class ToolContact(PointContribution):
         #: comes down onto (the punch touches the top ply at t = 0, as it touches a blank)
         self.start = {}
 
-    def set_plies(self, point_plies: np.ndarray, heights, tool_plies: dict) -> None:
-        """A stack: ``point_plies`` (P,) the ply of each point, ``heights`` the plies' heights
-        z_k (mm), ``tool_plies`` {tool name: a mask (P,) of the points it touches, those of
-        every ply exposed to it (:class:`drape.forming.exposure.StackExposure`)}. A moving tool
-        (the punch) starts at the height of the highest ply it touches: it travels the stroke
-        from touching that ply, and a stack ends with its bottom ply where one blank would."""
-        point_plies = np.asarray(point_plies)
-        heights = np.asarray(heights, dtype=float)
-        self.heights = heights[point_plies]
+    def set_plies(self, point_plies: np.ndarray, point_heights, tool_plies: dict) -> None:
+        """A stack: ``point_plies`` (P,) the ply of each point, ``point_heights`` (P,) the
+        height (mm) of each point's ply there as laid up (:func:`drape.forming.exposure.
+        laid_heights`), ``tool_plies`` {tool name: a mask (P,) of the points it touches, those
+        of every ply exposed to it (:class:`drape.forming.exposure.StackExposure`)}. A moving
+        tool (the punch) starts at the height of the highest point it touches: it travels the
+        stroke from touching the stack, and a stack ends with its bottom ply where one blank
+        would."""
+        self.heights = np.asarray(point_heights, dtype=float)
         masks = {name: np.asarray(mask, dtype=bool) for name, mask in tool_plies.items()}
         self.touched = {name: masks[name] for name in self.surfaces}
-        self.start = {name: float(heights[np.unique(point_plies[masks[name]])].max(
-            initial=0.0)) for name in self.moving if name in masks}
+        self.start = {name: float(self.heights[masks[name]].max(initial=0.0))
+                      for name in self.moving if name in masks}
 
     def set_exposure(self, tool_plies: dict) -> None:
         """A stack, between steps: the points each tool touches from now on ({tool name: a
@@ -110,7 +110,7 @@ class ToolContact(PointContribution):
             self.offsets[name] = np.array([0.0, 0.0, -down])
 
     def evaluate(self, positions, displacements):
-        if self.heights is not None:    # a stack: each ply's points at its height
+        if self.heights is not None:    # a stack: each point at its laid-up height
             positions = positions + np.column_stack([np.zeros((len(positions), 2)),
                                                      self.heights])
         f = np.zeros_like(positions)
