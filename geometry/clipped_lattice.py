@@ -189,27 +189,31 @@ class _Rim:
             out.append(len(s) - 1)
         return np.array(s), np.array(into), np.array(out), corners
 
-    def cells(self, shape: Outline, staircase):
-        """The strip cells (N, 4, 2: one per staircase edge, then one per corner) at the rim's
-        current places, counter-clockwise."""
+    def rows(self, n):
+        """The rim nodes' arc lengths in order (R,) and the strip cells (N + C, 4) as rows of
+        [the n staircase nodes; the R rim nodes], counter-clockwise: one per staircase edge,
+        then one per corner cell. Whether a row is a corner cell: row >= n."""
         s, into, out, corners = self.sequence()
-        rim = shape.points_at(s)
-        following = np.roll(np.arange(len(staircase)), -1)
-        cells = np.stack([rim[out], rim[into[following]], staircase[following], staircase],
-                         axis=1)
-        corner_cells = np.array([[rim[into[j]], rim[v], rim[out[j]], staircase[j]]
-                                 for j, v in corners]).reshape(-1, 4, 2)
-        return np.concatenate([cells, corner_cells])
+        stair = np.arange(n)
+        following = np.roll(stair, -1)
+        cells = np.column_stack([n + out, n + into[following], following, stair])
+        corner_cells = np.array([[n + into[j], n + v, n + out[j], j] for j, v in corners],
+                                dtype=np.int64).reshape(-1, 4)
+        return s, np.vstack([cells, corner_cells])
 
     def folded(self, shape: Outline, staircase):
-        """Rows of the strip cells (as :meth:`cells`) that are not strictly convex or whose
-        edge on the outline is shorter than MIN_RIM_SPACING of the mean."""
-        cells = self.cells(shape, staircase)
-        s, into, out, corners = self.sequence()
+        """Rows of the strip cells (as :meth:`rows`) that are not strictly convex or have an
+        edge on the outline shorter than MIN_RIM_SPACING of the mean."""
+        n = len(staircase)
+        s, rows = self.rows(n)
+        convex = _strictly_convex(np.vstack([staircase, shape.points_at(s)])[rows])
         spacing = np.append(s[1:], s[0] + shape.total) - s
         short = spacing <= MIN_RIM_SPACING * shape.total / len(s)
-        short_cells = np.concatenate([short[out], [short[into[j]] | short[v] for j, v in corners]])
-        return np.flatnonzero(~_strictly_convex(cells) | short_cells.astype(bool))
+        # a cell's edges on the outline start at its first rim node, and a corner cell's at
+        # its second (the vertex) too
+        short_cells = short[rows[:, 0] - n]
+        short_cells[n:] |= short[rows[n:, 1] - n]
+        return np.flatnonzero(~convex | short_cells)
 
 
 def _fit_rim(staircase, shape: Outline, size) -> _Rim:
@@ -331,14 +335,14 @@ def _untwist(rim: _Rim, cones: _SpokeCones, shape: Outline, widest: int = 4) -> 
     each side per round) into the range of outline points that spokes SPOKE_MARGIN_DEG inside
     their cones reach; if cells still fold, a few sweeps put each such node midway between its
     neighbours, within that range. Cells that do not fold keep their nodes, so a mesh without
-    folds is unchanged. Returns the rows of the cells still folded (as :meth:`_Rim.cells`)."""
+    folds is unchanged. Returns the rows of the cells still folded (as :meth:`_Rim.rows`)."""
     staircase, total = cones.staircase, shape.total
     n = len(staircase)
     half = cones.half - np.radians(SPOKE_MARGIN_DEG)
     folded = rim.folded(shape, staircase)
     for reach in range(1, widest + 1):
         edges = folded[folded < n]
-        if folded.size == 0 or edges.size == 0:
+        if edges.size == 0:
             break
         moving = np.zeros(n, dtype=bool)
         for offset in range(1 - reach, reach + 1):
@@ -365,7 +369,7 @@ def _with_strip(lattice, quads, loop, rim: _Rim, shape: Outline, size):
     """The mesh: the kept squares' nodes renumbered, the rim nodes after them, one strip
     quadrilateral per staircase edge (rim to staircase) and one per corner cell; InputError if
     the rim nodes run backwards or bunch up, or a strip cell is not convex."""
-    s, into, out, corners = rim.sequence()
+    s, rows = rim.rows(len(loop))
     if np.min(np.diff(np.append(s, s[0] + shape.total))) <= MIN_RIM_SPACING * shape.total / len(s):
         raise InputError("cannot lay the outline's nodes in order along it", key="mesh.size",
                          value=size, expected="a smaller element size, a rounder outline, or "
@@ -375,11 +379,7 @@ def _with_strip(lattice, quads, loop, rim: _Rim, shape: Outline, size):
     renumber[used] = np.arange(len(used))
     nodes = np.vstack([lattice[used], shape.points_at(s)])
     rim_ids = len(used) + np.arange(len(s))
-    a, b = renumber[loop], renumber[np.roll(loop, -1)]
-    strip = np.column_stack([rim_ids[out], rim_ids[np.roll(into, -1)], b, a])
-    corner_cells = np.array([[rim_ids[into[j]], rim_ids[v], rim_ids[out[j]], renumber[loop[j]]]
-                             for j, v in corners], dtype=np.int64).reshape(-1, 4)
-    strip = np.vstack([strip, corner_cells])
+    strip = np.concatenate([renumber[loop], rim_ids])[rows]
     convex = _strictly_convex(nodes[strip])
     if not convex.all():
         where = nodes[strip[~convex]].mean(axis=1)
