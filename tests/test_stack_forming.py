@@ -203,7 +203,7 @@ def test_each_tool_touches_its_ply_at_its_height():
     xy = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0], [1.0, 0.0]])
     contact.setup(xy)
     plies = np.array([0, 0, 1, 1])
-    contact.set_plies(plies, np.array([0.0, 0.3])[plies], {"die": plies == 0, "holder": plies == 1})
+    contact.set_plies(np.array([0.0, 0.3])[plies], {"die": plies == 0, "holder": plies == 1})
     contact.offsets["holder"] = np.array([0.0, 0.0, 0.27])      # 0.01 into the top ply
     positions = np.column_stack([xy, np.full(4, -0.02)])             # 0.02 into the die
     f, _ = contact.evaluate(positions, positions * [0, 0, 1])
@@ -234,7 +234,7 @@ def test_the_die_pushes_each_exposed_point_at_its_plys_height():
     contact = ToolContact({"die": Plane()}, set(), 0.0, penalty=10.0, friction=0.0,
                           regularisation=0.01, cutoff=10.0)
     contact.setup(xy)
-    contact.set_plies(plies, np.array([0.0, 0.3])[plies], {"die": from_below})
+    contact.set_plies(np.array([0.0, 0.3])[plies], {"die": from_below})
     positions = np.column_stack([xy, np.full(4, -0.32)])   # the top ply 0.02 into the die
     f, _ = contact.evaluate(positions, positions * [0, 0, 1])
     assert f[:, 2] == pytest.approx([3.2, 3.2, 0.2, 0.0])   # 10 N/mm^3 x the penetration

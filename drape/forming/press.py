@@ -200,14 +200,13 @@ class Forming(JobPart):
         if getattr(mesh, "n_plies", 1) < 2:
             return None
         point_plies = np.repeat(mesh.cell_plies()[: problem.n_cells], self.n_extra)
-        self.exposure = StackExposure(problem.ply_contact.nodes)
-        self._point_plies = point_plies
         nodes = problem.ply_contact.nodes
+        self.exposure = StackExposure(nodes)
+        self._point_plies = point_plies
         self._point_heights, self._column_plies = laid_heights(
             nodes.reference[:, :2], nodes.triangles, nodes.triangle_ply, mesh.thicknesses,
             self.tool_contact.reference_points[:, :2], point_plies)
-        self.tool_contact.set_plies(point_plies, self._point_heights,
-                                    self._exposed(nodes.reference))
+        self.tool_contact.set_plies(self._point_heights, self._exposed(nodes.reference))
         return point_plies
 
     def _exposed(self, x_nodes) -> dict:

@@ -105,8 +105,8 @@ def interface_summaries(problem, comm) -> list[dict]:
                               "friction_work": float(contact.friction_work[k])})
         slip = max((float(contact.accumulated_slip[i].max(initial=0.0))
                     for i, d in enumerate(contact.directions) if d.interface == k), default=0.0)
-        bridges = sorted({(d.slave, d.master) if d.slave < d.master else (d.master, d.slave)
-                          for d in contact.directions if d.interface == k and d.slaves is not None})
+        bridges = sorted({tuple(sorted((d.slave, d.master))) for d in contact.directions
+                          if d.interface == k and d.slaves is not None})
         out.append({"interface": k, "plies": [k, k + 1], "bridges": [list(b) for b in bridges],
                     "nodes_in_contact": int(comm.allreduce(mine["nodes_in_contact"])),
                     "contact_area_mm2": comm.allreduce(mine["contact_area"]),

@@ -71,11 +71,11 @@ class ToolContact(PointContribution):
         #: comes down onto (the punch touches the top ply at t = 0, as it touches a blank)
         self.start = {}
 
-    def set_plies(self, point_plies: np.ndarray, point_heights, tool_plies: dict) -> None:
-        """A stack: ``point_plies`` (P,) the ply of each point, ``point_heights`` (P,) the
-        height (mm) of each point's ply there as laid up (:func:`drape.forming.exposure.
-        laid_heights`), ``tool_plies`` {tool name: a mask (P,) of the points it touches, those
-        of every ply exposed to it (:class:`drape.forming.exposure.StackExposure`)}. A moving
+    def set_plies(self, point_heights, tool_plies: dict) -> None:
+        """A stack: ``point_heights`` (P,) the height (mm) of each point's ply there as laid up
+        (:func:`drape.forming.layup.laid_heights`), ``tool_plies`` {tool name: a mask (P,) of
+        the points it touches, those of every ply exposed to it
+        (:class:`drape.forming.exposure.StackExposure`)}. A moving
         tool (the punch) starts at the height of the highest point it touches: it travels the
         stroke from touching the stack, and a stack ends with its bottom ply where one blank
         would."""
