@@ -477,6 +477,48 @@ def test_a_patch_between_two_plies_lets_them_touch_past_its_edge(tmp_path):
     assert (x[far, 2] - x[below, 2]).min() > THICKNESS - 0.01 * h
 
 
+@pytest.mark.two_ranks
+def test_a_patch_between_two_plies_holds_where_the_top_ply_steps_down(tmp_path):
+    """The same stack, the punch 0.66 mm down in two steps. The top square steps down from the
+    patch over the element past its edge, over the die's opening, where the two squares hang
+    free: before, the bridges paired only the nodes beyond that element, so there the squares
+    were held by their bending alone, Newton's matrix was singular at the second step's start
+    (a 0.49 N residual however small the step) and the run stopped after 19 cutbacks. Now
+    every node outside the patch's outline is bridged: both steps converge, the holder within
+    1 %, and in the step-down ring (20-29 mm) the top square stays above the bottom one by
+    their half thicknesses less 1 % of h."""
+    from mpi4py import MPI
+    from scipy.spatial import cKDTree
+
+    from drape.forming.stack_reports import interface_summaries
+    root = shared(tmp_path)
+    patch = ('[[plies]]\norientation = 45.0\nthickness = 0.3\nshape = "disc"\n'
+             "radius = 20.0\n")
+    if MPI.COMM_WORLD.rank == 0:
+        stack_job(root, [ply(), patch, ply()])
+    MPI.COMM_WORLD.barrier()
+    job, summary, problem = form(root / "stack.toml", root / "run",
+                                 ["process.stroke=0.66", "steps.initial=0.5",
+                                  "steps.maximum=0.5"])
+    assert [record.columns["stroke"] for record in summary.rows] == pytest.approx(
+        [0.0, 0.33, 0.66])
+    assert [record.cutbacks for record in summary.rows] == [0, 0, 0]
+    for record in summary.rows[1:]:
+        assert record.columns["holder_force"] == pytest.approx(100.0, rel=0.01), record.step
+    h = job.config.mesh.size
+    interfaces = interface_summaries(problem, problem.comm)
+    assert max(i["max_penetration_mm"] for i in interfaces) < 0.01 * h
+    nodes = problem.ply_contact.nodes
+    x = nodes.reference + problem.gather(problem.u)
+    bottom, top = (np.flatnonzero(nodes.ply == k) for k in (0, 2))
+    radius = np.linalg.norm(nodes.reference[top, :2], axis=1)
+    ring = top[(radius > 20.0) & (radius < 20.0 + h * np.sqrt(2.0))]
+    assert len(ring) > 10
+    below = bottom[cKDTree(nodes.reference[bottom, :2]).query(nodes.reference[ring, :2])[1]]
+    assert np.allclose(nodes.reference[below, :2], nodes.reference[ring, :2])
+    assert (x[ring, 2] - x[below, 2]).min() > THICKNESS - 0.01 * h
+
+
 def frictionless(root):
     """Two identical 0/90 plies with a frictionless interface under the holder's force F, and
     one such ply alone under F / 2; the punch 1.2 mm down in 0.4 mm steps, the penalty

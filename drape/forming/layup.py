@@ -17,6 +17,10 @@ from scipy.spatial import cKDTree
 
 from drape.forming.surfaces import closest_point_on_triangles
 
+#: ``on_it``: a point within this fraction of its ply's element size of a ply's flat triangles
+#: lies on that ply (round-off of points on its outline)
+ON_PLY = 1e-9
+
 
 def closest_triangles(corners: np.ndarray, points: np.ndarray):
     """Per point (P, 3), the row of its closest triangle among ``corners`` (T, 3 corners, 3),
@@ -41,15 +45,18 @@ def closest_triangles(corners: np.ndarray, points: np.ndarray):
     return candidates[best], bary[best], squared[best]
 
 
-def _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, lower: bool):
+def _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, lower: bool,
+              on_it: bool = False):
     """(P, n_plies) whether each point (xy (P, 2), of ply ``plies``) lies within one of its
-    own ply's elements (its longest triangle edge) of ply j's flat triangles, for the plies
-    j below it (``lower``) or above it; False elsewhere."""
+    own ply's elements (its longest triangle edge) of ply j's flat triangles (``on_it``: on
+    them, to round-off), for the plies j below it (``lower``) or above it; False elsewhere."""
     plies = np.asarray(plies)
     points = np.column_stack([xy, np.zeros(len(xy))])
     corners = np.column_stack([xy_nodes, np.zeros(len(xy_nodes))])[triangles]
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
     reach = np.array([longest[triangle_ply == k].max(initial=0.0) for k in range(n_plies)])
+    if on_it:
+        reach = ON_PLY * np.maximum(reach, 1.0)
     covered = np.zeros((len(xy), n_plies), dtype=bool)
     for j in range(n_plies):
         rows = np.flatnonzero(plies > j if lower else plies < j)
@@ -60,10 +67,13 @@ def _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, lower: bool
     return covered
 
 
-def ply_under(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, above: bool = False):
+def ply_under(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, above: bool = False,
+              on_it: bool = False):
     """Per point (xy (P, 2), of ply ``plies``), the highest ply under it (``above``: the
-    lowest ply over it) within one of its ply's elements, -1 if none (:func:`laid_heights`)."""
-    covered = _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, not above)
+    lowest ply over it) within one of its ply's elements (:func:`laid_heights`; ``on_it``:
+    whose flat outline it lies within), -1 if none."""
+    covered = _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, not above,
+                        on_it)
     index = np.arange(n_plies)
     if above:
         return np.where(covered.any(axis=1), np.where(covered, index, n_plies).min(axis=1), -1)

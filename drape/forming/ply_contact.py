@@ -160,12 +160,18 @@ def _bridges(nodes: StackNodes, thicknesses, laws) -> list[Direction]:
     """The contact of plies that a partial ply between them leaves touching: ply k on ply
     j < k - 1 where no ply lies between them (:func:`drape.forming.layup.ply_under`), both
     directions, with the law of the interface under ply k (its underside's); counted to that
-    interface. None in a stack of whole plies."""
+    interface. None in a stack of whole plies.
+
+    Its slaves are the nodes outside the partial ply's outline, the element past its edge
+    included, over which ply k steps down onto ply j (drape.forming.layup.laid_heights): there
+    ply k leaves the partial ply's contact (its edge ramp) and must find ply j's, else the two
+    plies over a free span (the die's opening) pass through each other, held by their bending
+    alone, and Newton's matrix is singular."""
     from drape.forming.layup import ply_under
     n_plies = len(thicknesses)
     xy = nodes.reference[:, :2]
     args = (xy, nodes.triangles, nodes.triangle_ply, n_plies, xy, nodes.ply)
-    under, over = ply_under(*args), ply_under(*args, above=True)
+    under, over = ply_under(*args, on_it=True), ply_under(*args, above=True, on_it=True)
     out = []
     for k in range(2, n_plies):
         for j in range(k - 1):
