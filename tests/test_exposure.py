@@ -137,7 +137,9 @@ def test_the_ply_contact_bridges_plies_that_a_partial_ply_leaves_touching():
     interfaces, two bridge the squares (top on bottom and bottom under top, counted to
     interface 1, with its law), their slaves the squares' nodes outside the patch's outline,
     the element past its edge included, where the top square steps down and leaves the patch's
-    contact (the laid heights' test); whole plies get no bridge."""
+    contact (the laid heights' test), and those over the patch's last element (5 mm quads'
+    diagonal) inside its edge, which the patch uncovers if it slides that far; whole plies get
+    no bridge."""
     from drape.forming.ply_contact import FrictionLaw, PlyContact
     laws = [FrictionLaw(0.2), FrictionLaw(0.3)]
     args = ((0.3, 0.2, 0.4), laws, 1.0, 0.1, 0.01)
@@ -148,8 +150,8 @@ def test_the_ply_contact_bridges_plies_that_a_partial_ply_leaves_touching():
     assert [(d.slave, d.master, d.sign, d.interface) for d in bridges] == [
         (0, 2, -1.0, 1), (2, 0, 1.0, 1)]
     assert all(d.law is laws[1] and d.offset == pytest.approx(0.35) for d in bridges)
-    gap = np.linalg.norm(np.maximum(np.abs(nodes.reference[:, :2]) - 20.0, 0.0), axis=1)
-    outside = gap > 1e-9
-    assert 0 < np.count_nonzero(outside & (gap < 5.0 * np.sqrt(2.0)) & (nodes.ply == 2))
-    assert np.array_equal(bridges[0].slaves, (nodes.ply == 0) & outside)
-    assert np.array_equal(bridges[1].slaves, (nodes.ply == 2) & outside)
+    depth = 20.0 - np.abs(nodes.reference[:, :2]).max(axis=1)      # inside the patch's edge
+    bridged = depth < 5.0 * np.sqrt(2.0)
+    assert np.count_nonzero(bridged & (depth > 0.0) & (nodes.ply == 2)) == 7 * 7 - 5 * 5
+    assert np.array_equal(bridges[0].slaves, (nodes.ply == 0) & bridged)
+    assert np.array_equal(bridges[1].slaves, (nodes.ply == 2) & bridged)

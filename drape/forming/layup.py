@@ -3,9 +3,9 @@
 A ply lies on the plies below it where they are and on the die where none is; a ply over a
 partial ply (a patch, a drop-off) steps down past its edge onto the next ply below. From the
 plies' flat triangles (:class:`drape.forming.ply_contact.StackNodes`' numbering, any rank):
-:func:`laid_heights` gives each point's mid-surface height and :func:`ply_under` the ply
-directly under or over it, which is the one the ply-ply contact pairs it with where a
-partial ply between two plies leaves them touching.
+:func:`laid_heights` gives each point's mid-surface height, :func:`ply_under` the ply
+directly under or over it, and :func:`bridged_ply` the ply past its neighbour that the
+ply-ply contact pairs it with where a partial ply between two plies leaves them touching.
 
 Plain numpy and scipy.
 """
@@ -17,8 +17,8 @@ from scipy.spatial import cKDTree
 
 from drape.forming.surfaces import closest_point_on_triangles
 
-#: ``on_it``: a point within this fraction of its ply's element size of a ply's flat triangles
-#: lies on that ply (round-off of points on its outline)
+#: ``inside_by``: a point within this fraction of its ply's element size of a ply's flat
+#: triangles lies on that ply (round-off of points on its outline)
 ON_PLY = 1e-9
 
 
@@ -45,39 +45,99 @@ def closest_triangles(corners: np.ndarray, points: np.ndarray):
     return candidates[best], bary[best], squared[best]
 
 
+def outline_distance(xy_nodes, triangles, points) -> np.ndarray:
+    """Distance (P,) of points (P, 2) to the outline of flat triangles (T, 3) of the nodes
+    xy_nodes (N, 2): to the nearest of their edges that no other of them shares."""
+    edges = np.sort(np.vstack([triangles[:, [1, 2]], triangles[:, [2, 0]],
+                               triangles[:, [0, 1]]]), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    a, b = xy_nodes[unique[counts == 1, 0]], xy_nodes[unique[counts == 1, 1]]
+    tree = cKDTree(0.5 * (a + b))
+    half = 0.5 * np.linalg.norm(b - a, axis=1).max()
+    # the nearest edge's midpoint lies within the nearest midpoint's distance plus half an edge
+    nearest, _ = tree.query(points)
+    found = tree.query_ball_point(points, nearest + half + 1e-9)
+    counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=len(found))
+    which = np.repeat(np.arange(len(points)), counts)
+    edge = np.concatenate(found).astype(np.int64)
+    d = b[edge] - a[edge]
+    along = np.clip(np.sum((points[which] - a[edge]) * d, axis=1) / np.sum(d * d, axis=1), 0, 1)
+    distance = np.linalg.norm(points[which] - a[edge] - along[:, None] * d, axis=1)
+    out = np.full(len(points), np.inf)
+    np.minimum.at(out, which, distance)
+    return out
+
+
 def _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, lower: bool,
-              on_it: bool = False):
+              inside_by: float | None = None):
     """(P, n_plies) whether each point (xy (P, 2), of ply ``plies``) lies within one of its
-    own ply's elements (its longest triangle edge) of ply j's flat triangles (``on_it``: on
-    them, to round-off), for the plies j below it (``lower``) or above it; False elsewhere."""
+    own ply's elements (its longest triangle edge) of ply j's flat triangles (``inside_by``:
+    inside them, at least that many of its elements from their outline), for the plies j
+    below it (``lower``) or above it; False elsewhere."""
     plies = np.asarray(plies)
     points = np.column_stack([xy, np.zeros(len(xy))])
     corners = np.column_stack([xy_nodes, np.zeros(len(xy_nodes))])[triangles]
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
     reach = np.array([longest[triangle_ply == k].max(initial=0.0) for k in range(n_plies)])
-    if on_it:
-        reach = ON_PLY * np.maximum(reach, 1.0)
+    within = reach if inside_by is None else ON_PLY * np.maximum(reach, 1.0)
     covered = np.zeros((len(xy), n_plies), dtype=bool)
     for j in range(n_plies):
         rows = np.flatnonzero(plies > j if lower else plies < j)
         mine = triangle_ply == j
         if len(rows) and mine.any():
             _, _, squared = closest_triangles(corners[mine], points[rows])
-            covered[rows[squared <= reach[plies[rows]] ** 2], j] = True
+            on = squared <= within[plies[rows]] ** 2
+            if inside_by is not None:
+                depth = outline_distance(xy_nodes, triangles[mine], xy[rows])
+                on &= depth >= inside_by * reach[plies[rows]]
+            covered[rows[on], j] = True
     return covered
 
 
-def ply_under(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, above: bool = False,
-              on_it: bool = False):
+def ply_under(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, above: bool = False):
     """Per point (xy (P, 2), of ply ``plies``), the highest ply under it (``above``: the
-    lowest ply over it) within one of its ply's elements (:func:`laid_heights`; ``on_it``:
-    whose flat outline it lies within), -1 if none."""
-    covered = _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, not above,
-                        on_it)
+    lowest ply over it) within one of its ply's elements (:func:`laid_heights`), -1 if
+    none."""
+    covered = _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, not above)
     index = np.arange(n_plies)
     if above:
         return np.where(covered.any(axis=1), np.where(covered, index, n_plies).min(axis=1), -1)
     return np.where(covered, index, -1).max(axis=1)
+
+
+def bridged_ply(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, inset: float,
+                above: bool = False) -> np.ndarray:
+    """Per point (xy (P, 2), of ply k = ``plies``), the ply j < k - 1 (``above``: j > k + 1)
+    it can touch across the plies between, -1 if none: the nearest ply to k that it lies on
+    (its flat outline, to round-off), past ply k's neighbour, with no ply between that surely
+    keeps them apart. A ply between does where the point lies on it, but where the point lies
+    ``inset`` of its elements or more inside its own ply's outline, only where it lies that
+    far inside the ply between too: its edge band is where a partial ply may slide off.
+    (Plies of one outline share their edge band: there the plies between keep them apart.)"""
+    plies = np.asarray(plies)
+    args = (xy_nodes, triangles, triangle_ply, n_plies, xy, plies, not above)
+    on = _coverage(*args, inside_by=0.0)
+    deep = _coverage(*args, inside_by=inset)
+    corners = xy_nodes[triangles]
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    interior = np.zeros(len(xy), dtype=bool)
+    for k in np.unique(plies):
+        rows = np.flatnonzero(plies == k)
+        mine = triangle_ply == k
+        depth = outline_distance(xy_nodes, triangles[mine], xy[rows])
+        interior[rows] = depth >= inset * longest[mine].max()
+    keeps_apart = np.where(interior[:, None], deep, on)
+    out = np.full(len(xy), -1)
+    step = 1 if above else -1
+    for row in np.flatnonzero(on.any(axis=1)):
+        k = plies[row]
+        for j in range(k + step, n_plies if above else -1, step):
+            if abs(j - k) > 1 and on[row, j]:
+                out[row] = j
+                break
+            if keeps_apart[row, j]:
+                break
+    return out
 
 
 def laid_heights(xy_nodes, triangles, triangle_ply, thicknesses, xy, plies):

@@ -54,6 +54,11 @@ EDGE_RAMP = 0.1
 PAIRING_HYSTERESIS = 1e-3
 #: default search margin (mm): how far nodes may move between searches
 DEFAULT_MARGIN = 0.5
+#: a bridge across a partial ply (:func:`_bridges`) takes the nodes within this many of their
+#: ply's elements inside the partial ply's outline too: the partial ply may slide by that
+#: much over the forming before a node it uncovers misses the ply below it (bridges are
+#: found once, on the flat stack)
+BRIDGE_INSET = 1.0
 #: master triangles whose distance to a slave node is within this of the closest one's (mm)
 #: are a tie, decided by the triangles' reference centroids, not by round-off: a slave over a
 #: master vertex (every node of two plies meshed alike) is as close to all the triangles
@@ -111,7 +116,7 @@ class Direction:
     offset: float             # (t_slave + t_master) / 2, mm
     law: FrictionLaw
     #: (N,) which of the slave ply's nodes take part (None: all): across a partial ply, those
-    #: with no ply between them and the master ply (:func:`drape.forming.layup.ply_under`)
+    #: with no ply between them and the master ply (:func:`drape.forming.layup.bridged_ply`)
     slaves: object = None
 
 
@@ -158,7 +163,7 @@ def split_cells(cells: np.ndarray, reference_xy: np.ndarray, dolfinx_quads: bool
 
 def _bridges(nodes: StackNodes, thicknesses, laws) -> list[Direction]:
     """The contact of plies that a partial ply between them leaves touching: ply k on ply
-    j < k - 1 where no ply lies between them (:func:`drape.forming.layup.ply_under`), both
+    j < k - 1 where no ply lies between them (:func:`drape.forming.layup.bridged_ply`), both
     directions, with the law of the interface under ply k (its underside's); counted to that
     interface. None in a stack of whole plies.
 
@@ -166,12 +171,15 @@ def _bridges(nodes: StackNodes, thicknesses, laws) -> list[Direction]:
     included, over which ply k steps down onto ply j (drape.forming.layup.laid_heights): there
     ply k leaves the partial ply's contact (its edge ramp) and must find ply j's, else the two
     plies over a free span (the die's opening) pass through each other, held by their bending
-    alone, and Newton's matrix is singular."""
-    from drape.forming.layup import ply_under
+    alone, and Newton's matrix is singular. They include the nodes over the partial ply's
+    last element inside its edge too (BRIDGE_INSET), so that a partial ply may slide by as
+    much before ply k can miss ply j; there the partial ply keeps them apart, a gap of its
+    thickness, which the penalty does not feel where it is at least the smoothing g0."""
+    from drape.forming.layup import bridged_ply
     n_plies = len(thicknesses)
     xy = nodes.reference[:, :2]
-    args = (xy, nodes.triangles, nodes.triangle_ply, n_plies, xy, nodes.ply)
-    under, over = ply_under(*args, on_it=True), ply_under(*args, above=True, on_it=True)
+    args = (xy, nodes.triangles, nodes.triangle_ply, n_plies, xy, nodes.ply, BRIDGE_INSET)
+    under, over = bridged_ply(*args), bridged_ply(*args, above=True)
     out = []
     for k in range(2, n_plies):
         for j in range(k - 1):
