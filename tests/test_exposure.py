@@ -103,9 +103,10 @@ def test_laid_heights_step_down_past_a_partial_ply_and_match_whole_plies_to_the_
     40 mm patch between two squares: the bottom square at 0, the patch at (0.3 + 0.2)/2, the
     top square at 0.25 + (0.2 + 0.4)/2 over the patch and within one of its elements (5 mm quads'
     diagonal) of it, at (0.3 + 0.4)/2 on the bottom square farther out, with two plies in
-    those columns; the ply under each top node (layup.ply_under) is the patch, resp. the
-    bottom square, and the ply over each bottom node the patch, resp. the top square."""
-    from drape.forming.layup import laid_heights, ply_under
+    those columns. The ply past its neighbour each node touches (layup.bridged_ply): none
+    for whole plies; with the patch, the other square for the squares' nodes outside the
+    patch or over its last element inside its edge, none for the patch's own nodes."""
+    from drape.forming.layup import bridged_ply, laid_heights
     from drape.forming.plies import ply_heights
     thicknesses = (0.3, 0.2, 0.4)
     for sizes, whole in ((((100.0, 100.0),) * 3, True),
@@ -114,9 +115,12 @@ def test_laid_heights_step_down_past_a_partial_ply_and_match_whole_plies_to_the_
         xy, ply = nodes.reference[:, :2], nodes.ply
         args = (xy, nodes.triangles, nodes.triangle_ply)
         height, column = laid_heights(*args, thicknesses, xy, ply)
+        under = bridged_ply(*args, 3, xy, ply, 1.0)
+        over = bridged_ply(*args, 3, xy, ply, 1.0, above=True)
         if whole:
             assert np.array_equal(height, np.asarray(ply_heights(thicknesses))[ply])
             assert np.array_equal(column, ply + 1)
+            assert (under == -1).all() and (over == -1).all()
             continue
         reach = 5.0 * np.sqrt(2.0)
         gap = np.linalg.norm(np.maximum(np.abs(xy) - 20.0, 0.0), axis=1)    # to the patch
@@ -125,11 +129,10 @@ def test_laid_heights_step_down_past_a_partial_ply_and_match_whole_plies_to_the_
         assert (height[bottom] == 0.0).all() and np.allclose(height[ply == 1], 0.25)
         assert np.allclose(height[top & near], 0.55) and np.allclose(height[top & ~near], 0.35)
         assert (column[top & near] == 3).all() and (column[top & ~near] == 2).all()
-        under = ply_under(*args, 3, xy, ply)
-        over = ply_under(*args, 3, xy, ply, above=True)
-        assert np.array_equal(under[top], np.where(near[top], 1, 0))
-        assert np.array_equal(over[bottom], np.where(near[bottom], 1, 2))
-        assert (under[bottom] == -1).all() and (over[top] == -1).all()
+        edge_band = 20.0 - np.abs(xy).max(axis=1) < reach                    # inside by < 1
+        assert np.array_equal(under[top], np.where(edge_band[top], 0, -1))
+        assert np.array_equal(over[bottom], np.where(edge_band[bottom], 2, -1))
+        assert (under[~top] == -1).all() and (over[~bottom] == -1).all()
 
 
 def test_the_ply_contact_bridges_plies_that_a_partial_ply_leaves_touching():

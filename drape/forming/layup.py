@@ -3,9 +3,9 @@
 A ply lies on the plies below it where they are and on the die where none is; a ply over a
 partial ply (a patch, a drop-off) steps down past its edge onto the next ply below. From the
 plies' flat triangles (:class:`drape.forming.ply_contact.StackNodes`' numbering, any rank):
-:func:`laid_heights` gives each point's mid-surface height, :func:`ply_under` the ply
-directly under or over it, and :func:`bridged_ply` the ply past its neighbour that the
-ply-ply contact pairs it with where a partial ply between two plies leaves them touching.
+:func:`laid_heights` gives each point's mid-surface height and :func:`bridged_ply` the ply
+past its neighbour that the ply-ply contact pairs it with where a partial ply between two
+plies leaves them touching.
 
 Plain numpy and scipy.
 """
@@ -92,17 +92,6 @@ def _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, lower: bool
                 on &= depth >= inside_by * reach[plies[rows]]
             covered[rows[on], j] = True
     return covered
-
-
-def ply_under(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, above: bool = False):
-    """Per point (xy (P, 2), of ply ``plies``), the highest ply under it (``above``: the
-    lowest ply over it) within one of its ply's elements (:func:`laid_heights`), -1 if
-    none."""
-    covered = _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, not above)
-    index = np.arange(n_plies)
-    if above:
-        return np.where(covered.any(axis=1), np.where(covered, index, n_plies).min(axis=1), -1)
-    return np.where(covered, index, -1).max(axis=1)
 
 
 def bridged_ply(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, inset: float,
