@@ -29,9 +29,11 @@ ON_DIE_TOLERANCE = 1.0
 #: fabric under the holder thickens, as in the locking stage (docs/forming.md, "Blank holder").
 #: Room for several moves: where the holder comes down from the wrinkles at its rim onto the
 #: flat flange the force bends sharply, and closing in on F inside the bracket can take more
-#: than the one or two moves most steps need
+#: than the one or two moves most steps need; so can a stack's first step, where the holder
+#: reaches plies of different heights one after the other (a response convex in the target),
+#: and a move that failed and is made again half as far
 HOLDER_TOLERANCE = 0.01
-HOLDER_CORRECTIONS = 6
+HOLDER_CORRECTIONS = 10
 #: until the force has been seen on both sides of F, the re-solves after the first move the
 #: target by the error over the secant's slope of the measured force against the target, at
 #: least this: where the fabric pushes the holder at its rim the force answers a lift by a

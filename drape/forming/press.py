@@ -338,10 +338,14 @@ class Forming(JobPart):
         (the force grows with the target, so the bracket holds the answer), at its regula
         falsi point (Illinois: the end kept twice running has its error halved, so that a
         curved response does not stall it). Returns the last result with the iterations and
-        seconds of all; a failed re-solve fails the attempt, and the target goes back to what
-        it was. When all the moves are spent, the solve closest to F is kept: where the holder
-        comes down from resting on the wrinkles at its rim onto the flat flange the force
-        bends sharply, and the last move may land farther off than an earlier one."""
+        seconds of all. A re-solve that fails moved the holder too far in one go (a stack's
+        plies of different heights answer a move as the holder reaches the next one: 4 N, then
+        541 N for 200 N): the state of the last converged solve comes back and the next move
+        goes half as far. When all the moves are spent, the solve closest to F is kept: where
+        the holder comes down from resting on the wrinkles at its rim onto the flat flange the
+        force bends sharply, and the last move may land farther off than an earlier one; but
+        where a re-solve failed and the kept one is off F by more than HOLDER_WARNING, the
+        attempt fails (a smaller step may do), the target back to what it was."""
         holder = self.holder
         if holder is None or not result.converged:
             return result
@@ -349,37 +353,47 @@ class Forming(JobPart):
         last = None                     # (target, measured) of the solve before
         closest = None                  # (|error|, target, displacement, result) of the best solve
         bracket = Bracket()
+        halfway = None                  # after a failed re-solve, the next target
+        failure = None                  # the last re-solve that failed
         for _ in range(HOLDER_CORRECTIONS):
-            measured = self.tool_force("holder")
-            error = holder.force - measured
-            if abs(error) <= HOLDER_TOLERANCE * holder.force:
-                break
-            if closest is None or abs(error) < closest[0]:
-                closest = (abs(error), holder.target, self.problem.u.x.array.copy(), result)
-            bracket.add(holder.target, error)
-            if bracket.closed:
-                target = bracket.inside()
+            if halfway is None:
+                measured = self.tool_force("holder")
+                error = holder.force - measured
+                if abs(error) <= HOLDER_TOLERANCE * holder.force:
+                    break
+                converged = (abs(error), holder.target, self.problem.u.x.array.copy(), result)
+                if closest is None or abs(error) < closest[0]:
+                    closest = converged
+                bracket.add(holder.target, error)
+                if bracket.closed:
+                    target = bracket.inside()
+                else:
+                    slope = 1.0         # d measured / d target: 1 for the flat flange alone
+                    if last is not None and holder.target != last[0]:
+                        slope = (measured - last[1]) / (holder.target - last[0])
+                        slope = min(max(slope, HOLDER_LEAST_SLOPE), HOLDER_MOST_SLOPE)
+                    target = holder.target + error / slope
+                last = (holder.target, measured)
             else:
-                slope = 1.0             # d measured / d target: 1 for the flat flange alone
-                if last is not None and holder.target != last[0]:
-                    slope = (measured - last[1]) / (holder.target - last[0])
-                    slope = min(max(slope, HOLDER_LEAST_SLOPE), HOLDER_MOST_SLOPE)
-                target = holder.target + error / slope
-            last = (holder.target, measured)
+                target, halfway = halfway, None
             holder.target = target
             self.set_load(t)
             result = solve()
             iterations, seconds = iterations + result.iterations, seconds + result.seconds
-            if not result.converged:
-                holder.target = start
-                self.set_load(t)
-                break
+            if not result.converged:    # back to the last converged solve, half the move
+                failure = result
+                halfway = 0.5 * (converged[1] + target)
+                _take_solve(self, t, converged)
+                result = converged[3]
         else:
             if abs(holder.force - self.tool_force("holder")) > closest[0]:
-                _, holder.target, displacement, result = closest
-                self.set_load(t)
-                self.problem.u.x.array[:] = displacement
-                self.problem.evaluate()     # the law's and the tools' state there again
+                _take_solve(self, t, closest)
+                result = closest[3]
+        if failure is not None and abs(holder.force - self.tool_force("holder")) > (
+                HOLDER_WARNING * holder.force):
+            holder.target = start
+            self.set_load(t)
+            result = failure
         return dataclasses.replace(result, iterations=iterations, seconds=seconds)
 
     def control_holder(self, record) -> None:
@@ -500,3 +514,13 @@ class Forming(JobPart):
                 json.dump(summary, stream, indent=2)
                 stream.write("\n")
         return summary
+
+
+def _take_solve(forming, t: float, solve) -> None:
+    """Back to a converged solve (|error|, holder target, displacement, result) of
+    :meth:`Forming.hold_force`: its holder target and tools at load factor t, its
+    displacement, and the law's and the tools' state there."""
+    _, forming.holder.target, displacement, _ = solve
+    forming.set_load(t)
+    forming.problem.u.x.array[:] = displacement
+    forming.problem.evaluate()
