@@ -87,6 +87,20 @@ def shared(tmp_path):
     return MPI.COMM_WORLD.bcast(tmp_path, root=0)
 
 
+#: a R 20 mm ±45 disc: a reinforcement patch under the punch
+PATCH = '[[plies]]\norientation = 45.0\nthickness = 0.3\nshape = "disc"\nradius = 20.0\n'
+
+
+def patch_job(tmp_path, plies):
+    """The shared folder and, written by rank 0, its ``stack.toml`` of ``plies``."""
+    from mpi4py import MPI
+    root = shared(tmp_path)
+    if MPI.COMM_WORLD.rank == 0:
+        stack_job(root, plies)
+    MPI.COMM_WORLD.barrier()
+    return root
+
+
 # --- the job file ---------------------------------------------------------------------------
 
 def test_a_job_without_plies_is_a_stack_of_its_blank(tmp_path):
@@ -408,13 +422,8 @@ def test_a_patch_on_top_leaves_the_holder_to_the_ply_below(tmp_path):
     from drape.forming.press import Forming
     from drape.job import load_job
     from drape.run import run_job
-    root = shared(tmp_path)
+    root = patch_job(tmp_path, [ply(), PATCH])
     path = root / "stack.toml"
-    patch = ('[[plies]]\norientation = 45.0\nthickness = 0.3\nshape = "disc"\n'
-             "radius = 20.0\n")
-    if MPI.COMM_WORLD.rank == 0:
-        stack_job(root, [ply(), patch])
-    MPI.COMM_WORLD.barrier()
     job = load_job(path, overrides=SMALL)
     parts = {}
     summary = run_job(job, MPI.COMM_WORLD, output=str(root / "run"),
@@ -449,16 +458,10 @@ def test_a_patch_between_two_plies_lets_them_touch_past_its_edge(tmp_path):
     the holder's 100 N within 1 % at every step, all of it carried by the squares' contact
     through the bridge; past the patch (r >= 30 mm) the top square's mid-surface stays above
     the bottom one's by their half thicknesses less 1 % of h, and no pair penetrates."""
-    from mpi4py import MPI
     from scipy.spatial import cKDTree
 
     from drape.forming.stack_reports import interface_summaries
-    root = shared(tmp_path)
-    patch = ('[[plies]]\norientation = 45.0\nthickness = 0.3\nshape = "disc"\n'
-             "radius = 20.0\n")
-    if MPI.COMM_WORLD.rank == 0:
-        stack_job(root, [ply(), patch, ply()])
-    MPI.COMM_WORLD.barrier()
+    root = patch_job(tmp_path, [ply(), PATCH, ply()])
     job, summary, problem = form(root / "stack.toml", root / "run")
     assert summary.rows[-1].columns["stroke"] == pytest.approx(3.0)
     for record in summary.rows[1:]:
@@ -487,16 +490,10 @@ def test_a_patch_between_two_plies_holds_where_the_top_ply_steps_down(tmp_path):
     every node outside the patch's outline is bridged: both steps converge, the holder within
     1 %, and in the step-down ring (20-29 mm) the top square stays above the bottom one by
     their half thicknesses less 1 % of h."""
-    from mpi4py import MPI
     from scipy.spatial import cKDTree
 
     from drape.forming.stack_reports import interface_summaries
-    root = shared(tmp_path)
-    patch = ('[[plies]]\norientation = 45.0\nthickness = 0.3\nshape = "disc"\n'
-             "radius = 20.0\n")
-    if MPI.COMM_WORLD.rank == 0:
-        stack_job(root, [ply(), patch, ply()])
-    MPI.COMM_WORLD.barrier()
+    root = patch_job(tmp_path, [ply(), PATCH, ply()])
     job, summary, problem = form(root / "stack.toml", root / "run",
                                  ["process.stroke=0.66", "steps.initial=0.5",
                                   "steps.maximum=0.5"])
