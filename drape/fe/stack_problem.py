@@ -222,7 +222,14 @@ class StackProblem(MembraneProblem):
         pattern enlarged by the coupling of the pairs that can be pressed before the next
         search (module docstring); made again at the first Jacobian after a load step's
         search. Pairs a search within the step finds outside it are still accepted (PETSc
-        allocates them)."""
+        allocates them).
+
+        On more than one rank a stack's matrix is AIJ, whatever ``mat_type``: with BAIJ, a
+        stack with a partial ply aborted in MUMPS's factorisation at random on 2 ranks
+        ("free(): invalid pointer" in dmumps_fac_driver_, 3 runs in 49 and once in the test
+        suite), with AIJ in none of 44 (docs/notes.md); the cause is not known."""
+        if self.comm.size > 1 and mat_type == "baij":
+            mat_type = None
         A = super().create_matrix(mat_type)
         self._preallocate(A)
         return A
