@@ -68,6 +68,13 @@ def outline_distance(xy_nodes, triangles, points) -> np.ndarray:
     return out
 
 
+def _element_sizes(xy_nodes, triangles, triangle_ply, n_plies) -> np.ndarray:
+    """Per ply, its element size (mm): its longest flat triangle edge (0 for a ply with none)."""
+    corners = xy_nodes[triangles]
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    return np.array([longest[triangle_ply == k].max(initial=0.0) for k in range(n_plies)])
+
+
 def _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, lower: bool,
               inside_by: float | None = None):
     """(P, n_plies) whether each point (xy (P, 2), of ply ``plies``) lies within one of its
@@ -77,8 +84,7 @@ def _coverage(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, lower: bool
     plies = np.asarray(plies)
     points = np.column_stack([xy, np.zeros(len(xy))])
     corners = np.column_stack([xy_nodes, np.zeros(len(xy_nodes))])[triangles]
-    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
-    reach = np.array([longest[triangle_ply == k].max(initial=0.0) for k in range(n_plies)])
+    reach = _element_sizes(xy_nodes, triangles, triangle_ply, n_plies)
     within = reach if inside_by is None else ON_PLY * np.maximum(reach, 1.0)
     covered = np.zeros((len(xy), n_plies), dtype=bool)
     for j in range(n_plies):
@@ -107,14 +113,12 @@ def bridged_ply(xy_nodes, triangles, triangle_ply, n_plies, xy, plies, inset: fl
     args = (xy_nodes, triangles, triangle_ply, n_plies, xy, plies, not above)
     on = _coverage(*args, inside_by=0.0)
     deep = _coverage(*args, inside_by=inset)
-    corners = xy_nodes[triangles]
-    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    size = _element_sizes(xy_nodes, triangles, triangle_ply, n_plies)
     interior = np.zeros(len(xy), dtype=bool)
     for k in np.unique(plies):
         rows = np.flatnonzero(plies == k)
-        mine = triangle_ply == k
-        depth = outline_distance(xy_nodes, triangles[mine], xy[rows])
-        interior[rows] = depth >= inset * longest[mine].max()
+        depth = outline_distance(xy_nodes, triangles[triangle_ply == k], xy[rows])
+        interior[rows] = depth >= inset * size[k]
     keeps_apart = np.where(interior[:, None], deep, on)
     out = np.full(len(xy), -1)
     step = 1 if above else -1
