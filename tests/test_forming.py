@@ -636,6 +636,32 @@ def test_friction_has_memory_so_the_step_size_does_not_matter(steps):
     assert f[0, 0] == pytest.approx(-0.1 * mu * p, rel=1e-9)
 
 
+def test_each_tool_rubs_with_its_own_friction_coefficient():
+    """contact.die_friction / punch_friction / holder_friction: a point dragged past the stick
+    zone over two coincident flat tools feels mu_tool p from each, the die's own mu where set
+    and contact.friction for the others; a coefficient for a tool the job lacks is refused."""
+    from drape.errors import InputError
+    from drape.forming.contact import ContactParameters, normal_pressure
+    from drape.forming.tool_contact import ToolContact
+    from drape.job import load_job
+    contact = ContactParameters(friction=0.3, die_friction=0.05)
+    assert [contact.friction_for(name) for name in ("punch", "die", "holder")] == [0.3, 0.05,
+                                                                                   0.3]
+    eps, delta = 100.0, 0.05
+    mu = {name: contact.friction_for(name) for name in ("die", "punch")}
+    p = float(normal_pressure(np.array([-0.01]), eps, 0.0)[0][0])
+    for name in mu:
+        tools = ToolContact({name: FlatDie()}, set(), 0.0, eps, mu, delta, cutoff=10.0)
+        assert drag(tools, [3.0 * delta])[-1] == pytest.approx(-mu[name] * p, rel=1e-12)
+    both = ToolContact({"die": FlatDie(), "punch": FlatDie()}, set(), 0.0, eps, mu, delta,
+                       cutoff=10.0)
+    assert drag(both, [3.0 * delta])[-1] == pytest.approx(-(0.05 + 0.3) * p, rel=1e-12)
+    load_job(CONFIGS / "hemisphere.toml", overrides=["contact.holder_friction=0.4"])
+    with pytest.raises(InputError, match="contact.holder_friction.*no holder"):
+        load_job(CONFIGS / "hemisphere.toml",
+                 overrides=["contact.holder_friction=0.4", "process.holder_force=0"])
+
+
 # also under mpirun: a second mesh in one process may be partitioned otherwise, and the
 # checkpoint (keyed by node and cell numbers) restores onto it (docs/faults.md)
 @pytest.mark.parametrize("inertia", [[], ["process.areal_density=1", "process.punch_speed=3"]])

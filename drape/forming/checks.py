@@ -91,6 +91,24 @@ def check_forming(config, cover: bool = True) -> None:
     else:
         _check_blank(config, tools, dims, half_extents, cover)
     _check_mesh(config)
+    _check_tool_friction(config, tools, dims)
+
+
+def _check_tool_friction(config, tools, dims) -> None:
+    """A tool's own friction coefficient is set only for a tool the job has."""
+    for name in ("punch", "die", "holder"):
+        if getattr(config.contact, f"{name}_friction") is None:
+            continue
+        if name == "holder":
+            present = holder_mode(config) is not None
+        else:
+            present = tools.kind != "step" or getattr(dims, name).given
+        if not present:
+            raise InputError(f"set, but this job has no {name}", key=f"contact.{name}_friction",
+                             value=getattr(config.contact, f"{name}_friction"),
+                             expected=f"contact.{name}_friction unset, or a job with a {name} "
+                                      + ("(process.holder_force > 0, or a STEP holder file)"
+                                         if name == "holder" else f"(tools.step.{name}.file)"))
 
 
 def _hemisphere_opening(dims) -> float:

@@ -72,6 +72,12 @@ class ContactParameters:
                                     "yarn stiffness, h the blank's element size)", positive)
     friction: float = setting(DEFAULT_FRICTION, "Coulomb friction coefficient μ between fabric "
                               "and tools", non_negative)
+    punch_friction: float | None = setting(None, "μ between fabric and the punch; unset: "
+                                           "friction", non_negative)
+    die_friction: float | None = setting(None, "μ between fabric and the die; unset: friction",
+                                         non_negative)
+    holder_friction: float | None = setting(None, "μ between fabric and the blank holder; "
+                                            "unset: friction", non_negative)
     slip_regularisation: float = setting(DEFAULT_SLIP_REGULARISATION, "slip δ over which "
                                          "friction builds up to μ p (the stick zone)", positive,
                                          "mm")
@@ -79,6 +85,12 @@ class ContactParameters:
                                       "starts to push (0: the plain penalty); unset: "
                                       f"{DEFAULT_SMOOTHING_FACTOR:g} times the blank's element "
                                       "size", non_negative, "mm")
+
+    def friction_for(self, tool: str) -> float:
+        """μ between the fabric and the tool named ``tool`` (punch, die, holder): its own
+        coefficient where set (a lubricated die, a holder of another finish), else ``friction``."""
+        own = getattr(self, f"{tool}_friction", None)
+        return self.friction if own is None else own
 
     def smoothing_for(self, element_size: float) -> float:
         """g0 (mm): the configured smoothing, or the default fraction of the element size."""

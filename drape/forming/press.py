@@ -93,7 +93,9 @@ class Forming(JobPart):
         self.penalty = contact.penalty_for(params.mu * max(params.K1, params.K2), h)
         self.smoothing = contact.smoothing_for(h)
         self.tool_contact = ToolContact(surfaces, {"punch"}, self.stroke, self.penalty,
-                                        contact.friction, contact.slip_regularisation,
+                                        {name: contact.friction_for(name)
+                                         for name in surfaces},
+                                        contact.slip_regularisation,
                                         self.process.contact_cutoff, self.smoothing)
         self.contributions = [self.tool_contact]
         self.cell_fields = {"contact_pressure": self.contact_pressure}
@@ -125,17 +127,24 @@ class Forming(JobPart):
 
     def _describe(self, has_holder: bool) -> None:
         """The log's line on the tools, the holder, the contact and the inertia."""
-        process, contact = self.process, self.config.contact
+        process = self.process
         holder = {"force": f"holder force {process.holder_force:g} N (force-controlled)",
                   "position": "holder position-controlled (where its STEP file puts it; its "
                               "force is measured, process.holder_force is not applied)",
                   None: "no holder"}[self.holder_mode if has_holder else None]
         self.say(f"drape run: {self.tool_description}; stroke {self.stroke:g} mm, {holder}, "
                  f"penalty {self.penalty:.4g} N/mm^3 (smoothed over "
-                 f"{self.smoothing:.3g} mm), friction {contact.friction:g}"
+                 f"{self.smoothing:.3g} mm), friction {self._friction_text()}"
                  + (f", inertia {process.areal_density:g} kg/m^2, the punch at "
                     f"{process.punch_speed:g} m/s after {process.punch_ramp:g} mm"
                     if process.areal_density > 0 else ""))
+
+    def _friction_text(self) -> str:
+        """μ for the log: one number, or one per tool where they differ."""
+        mu = self.tool_contact.friction
+        if len(set(mu.values())) > 1:
+            return ", ".join(f"{name} {value:g}" for name, value in mu.items())
+        return f"{self.config.contact.friction:g}"
 
     @property
     def title(self) -> str:

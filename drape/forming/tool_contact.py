@@ -53,11 +53,15 @@ class ToolContact(PointContribution):
     name = "tools"
 
     def __init__(self, surfaces: dict, moving: set, stroke: float, penalty: float,
-                 friction: float, regularisation: float, cutoff: float, smoothing: float = 0.0):
+                 friction: float | dict, regularisation: float, cutoff: float,
+                 smoothing: float = 0.0):
         self.surfaces = surfaces
         self.moving = set(moving)
         self.stroke = float(stroke)
-        self.penalty, self.friction, self.regularisation = penalty, friction, regularisation
+        self.penalty, self.regularisation = penalty, regularisation
+        #: μ per tool (``friction``: one for all, or {tool name: μ})
+        self.friction = (dict(friction) if isinstance(friction, dict)
+                         else {name: float(friction) for name in surfaces})
         self.cutoff, self.smoothing = cutoff, float(smoothing)
         self.holder_control = None
         self.offsets = {name: np.zeros(3) for name in surfaces}
@@ -126,7 +130,7 @@ class ToolContact(PointContribution):
             # never reaches mu p, and the forces depend on the steps; docs/forming-checks.md)
             slip = (displacements[mine] - self.committed_u[mine]
                     - (offset - self.committed_offsets[name]) + self.elastic_slip[name][mine])
-            response = traction(query.gap, query.normal, slip, self.penalty, self.friction,
+            response = traction(query.gap, query.normal, slip, self.penalty, self.friction[name],
                                 self.regularisation, touching_is_active=True,
                                 smoothing=self.smoothing)
             f[mine] += response.traction
