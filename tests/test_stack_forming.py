@@ -62,15 +62,19 @@ def form(config, folder, overrides=(), comm=None, **hooks):
     return job, summary, parts["problem"]
 
 
-def ply_points(problem):
-    """Per ply, its law points' (x, y) and shear angle gamma_t (deg), gathered on every rank
-    and sorted by coordinates: {ply: (xy (P, 2), gamma (P,))}."""
+def point_plies(problem):
+    """The ply of each of this rank's law points (one ply: all 0)."""
     mesh = problem.blank_mesh
     n = problem.n_cells
     per_cell = problem.point_coordinates.shape[0] // n
-    plies = (np.repeat(mesh.cell_plies()[:n], per_cell) if hasattr(mesh, "cell_plies")
-             else np.zeros(n * per_cell, dtype=int))
-    local = (plies, problem.point_coordinates, problem.response.gamma_t_deg)
+    return (np.repeat(mesh.cell_plies()[:n], per_cell) if hasattr(mesh, "cell_plies")
+            else np.zeros(n * per_cell, dtype=int))
+
+
+def ply_points(problem):
+    """Per ply, its law points' (x, y) and shear angle gamma_t (deg), gathered on every rank
+    and sorted by coordinates: {ply: (xy (P, 2), gamma (P,))}."""
+    local = (point_plies(problem), problem.point_coordinates, problem.response.gamma_t_deg)
     gathered = problem.comm.allgather(local)
     plies, xy, gamma = (np.concatenate(part) for part in zip(*gathered))
     out = {}
@@ -569,51 +573,85 @@ def test_two_plies_on_a_frictionless_interface_form_like_one_ply_each(tmp_path):
           f"{top:.3g} deg; punch force {punch[1]:.4g} N against 2 x {punch[0]:.4g} N")
 
 
+def ply_tension(problem):
+    """Per ply, the mean over its law points of the yarn tensions S11 + S22 (N/mm), gathered
+    on every rank: {ply: mean}."""
+    tension = problem.response.S11 + problem.response.S22
+    gathered = problem.comm.allgather((point_plies(problem), tension))
+    plies, tension = (np.concatenate(part) for part in zip(*gathered))
+    return {int(k): float(tension[plies == k].mean()) for k in np.unique(plies)}
+
+
+#: the tools' own friction in the high-friction comparison: the holder rubs the top ply, the
+#: die the bottom one, so that plies free to slide on each other carry different tensions
+DIE_FRICTION, HOLDER_FRICTION = 0.05, 0.35
+
+
 @pytest.mark.two_ranks
 def test_two_plies_with_a_high_friction_draw_in_as_one_ply_of_double_stiffness(tmp_path):
-    """Two identical plies on an interface of mu = 5 (they do not slide on each other: the
-    holder's pressure and the punch's give a friction limit far above the shear stress
-    between them) against one ply of double stiffness: the material's areal factor mu = 2
-    (tension and shear stress doubled: twice the thickness), the bending rigidity doubled,
-    under the same holder force F (the laminate and the ply are both held by mu F from the
-    holder and mu F from the die). Both with the stack's penalty (the ply's rule with the
-    material's mu = 1; the double ply's own would be twice as stiff) and g0 = 0.02 mm.
+    """Two identical plies on an interface of mu = 5 against one ply of double stiffness (the
+    material's areal factor mu = 2: tension and shear stress doubled, twice the thickness;
+    the bending rigidity doubled), and against the same plies on a frictionless interface.
+    The holder rubs the top ply with mu_h = 0.35, the die the bottom one with mu_d = 0.05
+    (contact.holder_friction, contact.die_friction; the double ply is rubbed by both); the
+    same holder force F, the stack's penalty (the ply's rule with the material's mu = 1),
+    g0 = 0.02 mm, and a slip regularisation of 0.5 um, so that the flange slides (its draw-in
+    is 17 um) while the interface's stick spring, mu p / delta, binds the plies.
 
-    The draw-in of each ply at the mid-sides against the double ply's: within 5 %, from (1)
-    the penalty: the stack has one contact more in series between punch and die, which
-    shifts the deflection w by up to g0, and the draw-in grows as w^2: 2 g0 / stroke = 3.3 %;
-    (2) the thickness: the top ply is drawn over a punch 0.3 mm larger, 1 % of R 30 mm.
-    Measured 2.1 % (bottom) and 2.6 % (top) of 0.0169 mm. Identical plies hardly slide on
-    each other whatever mu: the frictionless stack above draws in the same to 5e-4, so this
-    checks the bonded stack's stiffness and holding, not the friction law."""
+    Draw-in: each ply's mid-sides within 5 % of the double ply's, from (1) the penalty: the
+    stack has one contact more in series between punch and die, which shifts the deflection w
+    by up to g0, and the draw-in grows as w^2: 2 g0 / stroke = 3.3 %; (2) the thickness: the
+    top ply is drawn over a punch 0.3 mm larger, 1 % of R 30 mm. Measured 2.2-2.5 %. The draw-in
+    is the punch's geometry (the yarns hardly stretch) and so does not tell the interfaces
+    apart (the frictionless stack's is the same to 0.3 %).
+
+    The tension tells them apart: bonded, the plies stretch alike and each carries half the
+    double ply's tension (the mean of S11 + S22 over its points); measured -2.2 % (bottom) and
+    +5.2 % (top), bound 10 %: the punch's friction acts on the top ply alone. Free to slide,
+    each ply carries what its own tool face holds: bottom / top about mu_d / mu_h = 0.14
+    (measured 0.16, bound 0.25), the bottom ply 73 % below half the double ply's."""
     import re
 
     from mpi4py import MPI
     root = shared(tmp_path)
-    path, material = root / "stack.toml", root / "double.toml"
+    material = root / "double.toml"
     if MPI.COMM_WORLD.rank == 0:
-        stack_job(root, [ply(), ply()], ["friction = 5.0"])
+        stack_job(root, [ply(), ply()], ["friction = 5.0"], name="bonded.toml")
+        stack_job(root, [ply(), ply()], ["friction = 0.0"], name="free.toml")
         text = (CONFIGS / "materials" / "paper_three_surface.toml").read_text()
         material.write_text(re.sub(r"^mu = 1.0", "mu = 2.0", text, flags=re.M))
     MPI.COMM_WORLD.barrier()
     penalty = 0.01 * 10000.0 / 6.0 ** 2      # c K / h^2 of configs/hemisphere.toml, mu = 1
-    short = ["process.stroke=1.2", f"contact.smoothing={FRICTIONLESS_SMOOTHING}",
-             f"contact.penalty={penalty!r}"]
+    short = ["process.stroke=1.2", "steps.minimum=0.02",
+             f"contact.smoothing={FRICTIONLESS_SMOOTHING}", f"contact.penalty={penalty!r}",
+             f"contact.die_friction={DIE_FRICTION}", f"contact.holder_friction={HOLDER_FRICTION}",
+             "contact.slip_regularisation=0.0005"]
     double = form(CONFIGS / "hemisphere.toml", root / "one",
                   blank_job(root, [f'material="{material}"', "bending.rigidity=20", *short]))
-    form(path, root / "two", short)
+    bonded = form(root / "bonded.toml", root / "bonded", short)
+    free = form(root / "free.toml", root / "free", short)
+    half = 0.5 * ply_tension(double[2])[0]
+    tension = {name: ply_tension(run[2]) for name, run in (("bonded", bonded), ("free", free))}
     if MPI.COMM_WORLD.rank != 0:
         return
     assert double[0].params.mu == 2.0
     alone = json.loads((root / "one" / "summary.json").read_text())["draw_in_mm"]
-    plies = json.loads((root / "two" / "summary.json").read_text())["plies"]
+    plies = json.loads((root / "bonded" / "summary.json").read_text())["plies"]
     sides = [key for key in alone if key.startswith("mid_")]
     assert len(sides) == 4 and min(alone[key] for key in sides) > 0.01
     worst = max(abs(p["draw_in_mm"][key] - alone[key]) / alone[key]
                 for p in plies for key in sides)
     assert worst < 0.05
+    assert half > 0.0
+    for k in (0, 1):
+        assert tension["bonded"][k] == pytest.approx(half, rel=0.10), k
+    free = tension["free"]
+    assert free[0] / free[1] < 0.25
+    assert free[0] < 0.5 * half
     print(f"\nhigh friction: each ply's draw-in within {worst:.3g} of the double ply's "
-          f"{alone['mid_right']:.4g} mm")
+          f"{alone['mid_right']:.4g} mm; mean tension / half the double ply's: bonded "
+          f"{tension['bonded'][0] / half:.3f}, {tension['bonded'][1] / half:.3f}; "
+          f"frictionless {free[0] / half:.3f}, {free[1] / half:.3f}")
 
 
 @pytest.fixture(scope="module")
