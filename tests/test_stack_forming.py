@@ -636,7 +636,9 @@ def test_two_plies_with_a_high_friction_draw_in_as_one_ply_of_double_stiffness(t
         return
     assert double[0].params.mu == 2.0
     alone = json.loads((root / "one" / "summary.json").read_text())["draw_in_mm"]
-    plies = json.loads((root / "bonded" / "summary.json").read_text())["plies"]
+    report = json.loads((root / "bonded" / "summary.json").read_text())
+    assert report["friction"] == {"punch": 0.2, "die": DIE_FRICTION, "holder": HOLDER_FRICTION}
+    plies = report["plies"]
     sides = [key for key in alone if key.startswith("mid_")]
     assert len(sides) == 4 and min(alone[key] for key in sides) > 0.01
     worst = max(abs(p["draw_in_mm"][key] - alone[key]) / alone[key]

@@ -470,6 +470,7 @@ class Forming(JobPart):
             "max_penetration_mm": float(max(r.columns.get("max_penetration", 0.0)
                                             for r in records)),
             "penalty_N_per_mm3": self.penalty,
+            "friction": dict(self.tool_contact.friction),     # μ per tool
             "regularisation_share": last.regularisation_share,
             "steps": last.step,
             "newton_iterations": int(sum(r.newton_iterations for r in records)),
