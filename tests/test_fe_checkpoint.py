@@ -6,6 +6,7 @@ overwritten silently (run, picture-frame, calibrate); a NaN in the law's output 
 residual fails the attempt, never a result."""
 
 import csv
+import json
 import os
 import shutil
 import signal
@@ -172,6 +173,18 @@ def last_xdmf_displacement(folder):
     return read(mesh.find("Geometry/DataItem")), read(last.find("Attribute/DataItem"))
 
 
+def forget_setting(path, key):
+    """Remove ``key`` from the config signature a checkpoint file keeps, as a drape older than
+    the setting would have written it."""
+    with np.load(path) as data:
+        arrays = {name: data[name] for name in data.files}
+    meta = json.loads(str(arrays["meta"]))
+    assert key in meta["signature"]
+    del meta["signature"][key]
+    arrays["meta"] = np.array(json.dumps(meta))
+    np.savez(path, **arrays)
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
     """The short job run uninterrupted, once per number of ranks and extra arguments (the
@@ -207,6 +220,14 @@ def test_sigterm_then_resume_gives_the_uninterrupted_result(tmp_path, uninterrup
     assert "regularisation.out_of_plane_damping (0.001 -> 0.01)" in changed.stderr
     moved = tmp_path / "moved"
     shutil.copytree(stopped, moved)
+    if ranks == 1:
+        # a checkpoint of an older drape, without a setting added since: resumed where the
+        # setting is at its default (the behaviour before it), refused where it is not
+        forget_setting(stopped / "checkpoint.npz", "contact.die_friction")
+        newer = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT,
+                      "--set", "contact.die_friction=0.1", "--resume")
+        assert newer.returncode == 2, newer.stderr
+        assert "contact.die_friction (unset -> 0.1)" in newer.stderr
 
     done = drape("run", CONFIGS / "bias_extension.toml", "--output", stopped, *SHORT, "--resume",
                  ranks=ranks)

@@ -43,14 +43,20 @@ VERSION = 4
 FREE_KEYS = ("title", "material", "output.folder", "output.checkpoint_every")
 
 
-def signature(job) -> dict[str, str]:
-    """The effective config (overrides applied) and material, flattened: key -> repr(value)."""
+def signature(job, defaults: bool = False) -> dict[str, str]:
+    """The effective config (overrides applied) and material, flattened: key -> repr(value);
+    ``defaults``: each key's default instead (the setting's own, where it has one)."""
     flat = {}
 
     def walk(prefix, value):
         if dataclasses.is_dataclass(value):
-            value = {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
-        if isinstance(value, dict):
+            for field in dataclasses.fields(value):
+                key = f"{prefix}.{field.name}" if prefix else field.name
+                item = getattr(value, field.name)
+                if defaults and not dataclasses.is_dataclass(item):
+                    item = _default(field, item)
+                walk(key, item)
+        elif isinstance(value, dict):
             for key, item in value.items():
                 walk(f"{prefix}.{key}" if prefix else str(key), item)
         elif isinstance(value, (tuple, list)) and value and dataclasses.is_dataclass(value[0]):
@@ -67,10 +73,25 @@ def signature(job) -> dict[str, str]:
     return flat
 
 
-def differences(saved: dict, now: dict) -> list[str]:
+def _default(field, value):
+    """A dataclass field's default (``value`` itself where the field has none)."""
+    if field.default is not dataclasses.MISSING:
+        return field.default
+    if field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    return value
+
+
+def differences(saved: dict, now: dict, defaults: dict | None = None) -> list[str]:
+    """The keys whose values differ, as "key (saved -> now)". A key the checkpoint lacks (a
+    setting newer than the drape that wrote it) matches where its value now is the setting's
+    default (``defaults``, :func:`signature` with ``defaults=True``): the default of a new
+    setting keeps the behaviour before it."""
+    defaults = defaults or {}
     keys = sorted(set(saved) | set(now))
     return [f"{k} ({saved.get(k, 'unset')} -> {now.get(k, 'unset')})" for k in keys
-            if saved.get(k) != now.get(k)]
+            if saved.get(k) != now.get(k)
+            and not (k not in saved and k in defaults and now.get(k) == defaults[k])]
 
 
 class Checkpoints:
@@ -90,6 +111,7 @@ class Checkpoints:
         self.comm = problem.comm
         self.every = every
         self.signature = signature(job)
+        self.defaults = signature(job, defaults=True)
         self.records, self.ledger = records, ledger
         self.read_row = read_row
         self.last = None          # the last accepted solver Step
@@ -348,7 +370,7 @@ class Checkpoints:
         if meta.get("version") != VERSION:
             raise InputError("the checkpoint is of another drape version", source=str(self.path),
                              value=meta.get("version"), expected=f"version {VERSION}")
-        changed = differences(meta["signature"], self.signature)
+        changed = differences(meta["signature"], self.signature, self.defaults)
         if changed:
             raise InputError("the config or material differs from the checkpoint's: "
                              + "; ".join(changed), source=str(self.path), key="--resume",
