@@ -144,7 +144,7 @@ class Forming(JobPart):
         mu = self.tool_contact.friction
         if len(set(mu.values())) > 1:
             return ", ".join(f"{name} {value:g}" for name, value in mu.items())
-        return f"{self.config.contact.friction:g}"
+        return f"{next(iter(mu.values()), self.config.contact.friction):g}"
 
     @property
     def title(self) -> str:
