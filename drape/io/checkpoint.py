@@ -45,7 +45,7 @@ FREE_KEYS = ("title", "material", "output.folder", "output.checkpoint_every")
 
 def signature(job, defaults: bool = False) -> dict[str, str]:
     """The effective config (overrides applied) and material, flattened: key -> repr(value);
-    ``defaults``: each key's default instead (the setting's own, where it has one)."""
+    ``defaults``: each key's default instead (keys of settings without one left out)."""
     flat = {}
 
     def walk(prefix, value):
@@ -54,7 +54,10 @@ def signature(job, defaults: bool = False) -> dict[str, str]:
                 key = f"{prefix}.{field.name}" if prefix else field.name
                 item = getattr(value, field.name)
                 if defaults and not dataclasses.is_dataclass(item):
-                    item = _default(field, item)
+                    if not _has_default(field):
+                        continue     # a required setting: no default to match
+                    item = (field.default if field.default is not dataclasses.MISSING
+                            else field.default_factory())
                 walk(key, item)
         elif isinstance(value, dict):
             for key, item in value.items():
@@ -73,13 +76,9 @@ def signature(job, defaults: bool = False) -> dict[str, str]:
     return flat
 
 
-def _default(field, value):
-    """A dataclass field's default (``value`` itself where the field has none)."""
-    if field.default is not dataclasses.MISSING:
-        return field.default
-    if field.default_factory is not dataclasses.MISSING:
-        return field.default_factory()
-    return value
+def _has_default(field) -> bool:
+    return (field.default is not dataclasses.MISSING
+            or field.default_factory is not dataclasses.MISSING)
 
 
 def differences(saved: dict, now: dict, defaults: dict | None = None) -> list[str]:
