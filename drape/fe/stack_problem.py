@@ -60,6 +60,7 @@ class StackProblem(MembraneProblem):
         self.begin_step()
         self._forces_at = None
         self._constrained_for = None
+        self._layout_of = self._layout = None
 
     # --- the stack's nodes, gathered ------------------------------------------------------------
     def _stack_nodes(self, stack_mesh) -> StackNodes:
@@ -189,14 +190,37 @@ class StackProblem(MembraneProblem):
         # the (P, 4, 4) node blocks of 3 x 3, each pair's rows in turn: PETSc adds them to
         # every entry in the order one setValues per pair did
         blocks = -(forces.jacobian * free[:, :, :, None, None] * free[:, None, None, :, :])
-        blocks = blocks.transpose(0, 1, 3, 2, 4)
-        rows = nodes.ravel().astype(PETSc.IntType)
-        columns = np.repeat(nodes, 4, axis=0).ravel().astype(PETSc.IntType)
-        starts = np.arange(0, len(columns) + 1, 4, dtype=PETSc.IntType)
-        A.setValuesBlockedIJV(starts, columns, np.ascontiguousarray(blocks).ravel(),
-                              addv=PETSc.InsertMode.ADD, rowmap=rows)
+        blocks = np.ascontiguousarray(blocks.transpose(0, 1, 3, 2, 4)).reshape(-1, 9)
+        # the pairs share node blocks (a master triangle's nodes serve many slaves): summed
+        # here, each block goes to PETSc once, in CSR order (its insertion was the cost)
+        if len(nodes):
+            rows, starts, columns, order, segments = self._coupling_layout(nodes)
+            summed = np.add.reduceat(blocks[order], segments, axis=0)
+            A.setValuesBlockedIJV(starts, columns, summed.ravel(), addv=PETSc.InsertMode.ADD,
+                                  rowmap=rows)
         A.assemble()
         self.timings["ply_assembly"] += time.perf_counter() - start
+
+    def _coupling_layout(self, nodes):
+        """For the pairs' nodes (P, 4): the distinct node blocks (row, column) of their 16 P
+        blocks as CSR (block rows, row starts, columns), the order that groups each distinct
+        block's copies and where each group starts; kept while the pairs stay the same."""
+        from petsc4py import PETSc
+        if self._layout_of is not None and np.array_equal(self._layout_of, nodes):
+            return self._layout
+        nodes = np.asarray(nodes, dtype=np.int64)
+        keys = (nodes[:, :, None] * self.n_global + nodes[:, None, :]).ravel()
+        order = np.argsort(keys, kind="stable")
+        keys = keys[order]
+        segments = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+        block_rows, columns = np.divmod(keys[segments], self.n_global)
+        first = np.flatnonzero(np.r_[True, block_rows[1:] != block_rows[:-1]])
+        int_type = PETSc.IntType
+        self._layout = (block_rows[first].astype(int_type),
+                        np.r_[first, len(block_rows)].astype(int_type),
+                        columns.astype(int_type), order, segments)
+        self._layout_of = nodes.copy()
+        return self._layout
 
     def _repair(self, snes, x) -> None:
         """A new Newton iteration: slave nodes that left their triangles are paired again
