@@ -70,7 +70,7 @@ def main(argv=None) -> int:
         """How many points changed state (tools: arrays; plies: pairs found in both)."""
         if not isinstance(state, tuple):
             return int(np.sum(state != before))
-        common, here, there = np.intersect1d(state[0], before[0], return_indices=True)
+        _, here, there = np.intersect1d(state[0], before[0], return_indices=True)
         return int(np.sum(state[1][here] != before[1][there]))
 
     def monitor(snes, its, norm):

@@ -228,6 +228,16 @@ def to_mapping(instance) -> dict:
     return out
 
 
+def field_default(fld: dataclasses.Field):
+    """A config field's default (its factory's value where it has one), or
+    ``dataclasses.MISSING`` for a required setting."""
+    if fld.default is not dataclasses.MISSING:
+        return fld.default
+    if fld.default_factory is not dataclasses.MISSING:
+        return fld.default_factory()
+    return dataclasses.MISSING
+
+
 def describe(cls, prefix: str = "") -> list[tuple[str, str, str, str]]:
     """(key, type, default, doc) for every field of a config dataclass, nested ones included."""
     rows = []
@@ -235,8 +245,8 @@ def describe(cls, prefix: str = "") -> list[tuple[str, str, str, str]]:
     for fld in dataclasses.fields(cls):
         key = f"{prefix}.{fld.name}" if prefix else fld.name
         tp = hints[fld.name]
-        default = fld.default if fld.default is not dataclasses.MISSING else (
-            fld.default_factory() if fld.default_factory is not dataclasses.MISSING else None)
+        default = field_default(fld)
+        default = None if default is dataclasses.MISSING else default
         inner = _table_type(tp)
         if inner is not None:
             kind, sub = inner

@@ -187,8 +187,7 @@ class StackProblem(MembraneProblem):
         constrained = self._constrained()
         nodes = forces.nodes
         free = ~constrained[3 * nodes[:, :, None] + np.arange(3)]              # (P, 4, 3)
-        # the (P, 4, 4) node blocks of 3 x 3, each pair's rows in turn: PETSc adds them to
-        # every entry in the order one setValues per pair did
+        # the (P, 4, 4) node blocks of 3 x 3, each pair's rows in turn
         blocks = -(forces.jacobian * free[:, :, :, None, None] * free[:, None, None, :, :])
         blocks = np.ascontiguousarray(blocks.transpose(0, 1, 3, 2, 4)).reshape(-1, 9)
         # the pairs share node blocks (a master triangle's nodes serve many slaves): summed

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drape.config import field_default
 from drape.errors import InputError
 from drape.io.atomic import replace_atomically, replace_copy, replace_text, savez
 from drape.io.layout import Layout, coordinate_tolerance, merge_ranks, pick_rows
@@ -54,10 +55,9 @@ def signature(job, defaults: bool = False) -> dict[str, str]:
                 key = f"{prefix}.{field.name}" if prefix else field.name
                 item = getattr(value, field.name)
                 if defaults and not dataclasses.is_dataclass(item):
-                    if not _has_default(field):
+                    item = field_default(field)
+                    if item is dataclasses.MISSING:
                         continue     # a required setting: no default to match
-                    item = (field.default if field.default is not dataclasses.MISSING
-                            else field.default_factory())
                 walk(key, item)
         elif isinstance(value, dict):
             for key, item in value.items():
@@ -74,11 +74,6 @@ def signature(job, defaults: bool = False) -> dict[str, str]:
     walk("material", job.params)
     flat.pop("material.name", None)
     return flat
-
-
-def _has_default(field) -> bool:
-    return (field.default is not dataclasses.MISSING
-            or field.default_factory is not dataclasses.MISSING)
 
 
 def differences(saved: dict, now: dict, defaults: dict | None = None) -> list[str]:
