@@ -200,6 +200,12 @@ class ProcessConfig:
     holder_force: float = setting(200.0, "total blank-holder force: the rigid holder's height "
                                   "is controlled to press the flange with it (0: no holder)",
                                   non_negative, "N")
+    holder_prediction: Literal["last", "trend"] = setting(
+        "last", "where a step's first attempt puts the force-controlled holder: 'last': where "
+        "the last step ended it (corrected by half its force's error); 'trend': carried on "
+        "along the last three steps' holder positions, and its first re-solve scaled by the "
+        "force's response measured before (fewer holder re-solves where the holder drifts, "
+        "docs/forming.md)")
     locking_angle: float = setting(40.0, "shear angle above which the fabric is reported as "
                                    "locked (summary.json, maps)", in_range(0.0, 90.0, lo_open=True,
                                                                            hi_open=True), "deg")

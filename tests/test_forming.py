@@ -610,6 +610,75 @@ def test_the_holder_lifts_as_far_as_its_force_needs():
     assert np.all(np.diff([lowering(x) for x in targets]) > 0.0)
 
 
+def test_the_holder_follows_its_trend_and_a_checkpoint_keeps_it():
+    """HolderControl with process.holder_prediction = "trend": where the target F' the holder
+    needs grows as a quadratic in the load factor (a - b t - c t^2: the holder lifting faster
+    and faster off wrinkles at its rim), each step's first attempt starts on it exactly
+    (Lagrange's polynomial through the last three converged steps, whatever their sizes),
+    plus the correction by half the force's error; after two steps, on the line through
+    them. "last" starts where the last step ended. state() / load_state() carry it over."""
+    from drape.forming.holder import HolderControl
+    F = 500.0
+
+    def needed(t):
+        return 1000.0 - 4.0e5 * t - 9.0e6 * t ** 2
+
+    trend = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1, trend=True)
+    last = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1)
+    times = [0.01, 0.015, 0.0225, 0.03, 0.031]
+    for k, t in enumerate(times):
+        for holder in (trend, last):
+            holder.predict(t)
+        if k == 2:      # two steps seen: the line through them
+            slope = (needed(times[1]) - needed(times[0])) / (times[1] - times[0])
+            assert trend.target == pytest.approx(
+                needed(times[1]) + slope * (t - times[1]) + 2.0, rel=1e-12)
+        if k >= 3:
+            assert trend.target == pytest.approx(needed(t) + 2.0, rel=1e-12)
+        assert last.target == last.committed
+        for holder in (trend, last):
+            holder.target = needed(t)   # the step converged there, measuring 496 N
+            holder.update(F - 4.0, t)
+            assert holder.committed == needed(t) + 2.0
+    copy = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1, trend=True)
+    trend.slope = 0.07
+    copy.load_state({key: np.array(value) for key, value in trend.state().items()})
+    for holder in (trend, copy):
+        holder.predict(0.04)
+    assert copy.target == trend.target == pytest.approx(needed(0.04) + 2.0, rel=1e-12)
+    assert copy.first_slope() == 0.07 and last.first_slope() == 1.0
+    young = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1, trend=True)
+    young.load_state({"holder_target": np.array(321.0)})     # a checkpoint of before the trend
+    young.predict(0.5)
+    assert young.target == 321.0 and young.first_slope() == 1.0
+
+
+def test_a_holder_following_its_trend_moves_by_the_slope_it_measured():
+    """Forming.hold_force on a flange answering 0.1 F' + 320 (the fabric holds the holder up
+    at its rim): with "last" each step takes two re-solves (the first moves F' by F -
+    measured, the secant then lands); following the trend, a step after the first takes one,
+    its move scaled by the slope the first step's secant measured."""
+    from drape.forming.holder import HOLDER_TOLERANCE, HolderControl
+    from drape.forming.press import Forming
+    from drape.fe.solver import SolveResult
+    F = 200.0
+    solved = SolveResult(True, 7, "CONVERGED_FNORM_RELATIVE", 1e-3, 1.0)
+    again = SolveResult(True, 2, "CONVERGED_FNORM_ABS", 1e-3, 0.5)
+    for trend, moves in ((False, [2, 2]), (True, [2, 1])):
+        holder = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1, trend=trend)
+        offset = [320.0]
+        flange = stand_in_flange(holder, lambda target: offset[0] + 0.1 * target)
+        for step, count in enumerate(moves):
+            flange.loads.clear()
+            holder.target = holder.committed
+            Forming.hold_force(flange, 0.3 + 0.1 * step, lambda: again, solved)
+            assert len(flange.loads) == count
+            assert abs(flange.tool_force("holder") - F) <= HOLDER_TOLERANCE * F
+            assert holder.first_slope() == (pytest.approx(0.1, rel=1e-9) if trend else 1.0)
+            holder.update(flange.tool_force("holder"), 0.3 + 0.1 * step)
+            offset[0] += 30.0       # the flange thickens: the next step starts 30 N off
+
+
 @pytest.mark.parametrize("steps", [1, 4, 20])
 def test_friction_has_memory_so_the_step_size_does_not_matter(steps):
     """Friction (elastic slip delta, then mu p) on a point dragged over a flat die: after a
@@ -664,14 +733,15 @@ def test_each_tool_rubs_with_its_own_friction_coefficient():
 
 # also under mpirun: a second mesh in one process may be partitioned otherwise, and the
 # checkpoint (keyed by node and cell numbers) restores onto it (docs/faults.md)
-@pytest.mark.parametrize("inertia", [[], ["process.areal_density=1", "process.punch_speed=3"]])
+@pytest.mark.parametrize("inertia", [[], ["process.areal_density=1", "process.punch_speed=3"],
+                                     ["process.holder_prediction=trend"]])
 def test_a_resumed_forming_run_equals_the_uninterrupted_one(tmp_path, inertia):
     """Stopped after step 4 and resumed from its checkpoint, a forming run ends where the
-    uninterrupted one does: the friction memory, the holder's control and the tools' positions
-    are in the checkpoint, and so are the last two steps the inertia's second difference
-    needs. On the scaled-down hemisphere (SMALL_HEMISPHERE and SMALL_SQUARE: 400 cells):
-    resuming exactly does not depend on the mesh, and the shipped one made each run 7 times
-    dearer."""
+    uninterrupted one does: the friction memory, the holder's control (with its trend) and the
+    tools' positions are in the checkpoint, and so are the last two steps the inertia's second
+    difference needs. On the scaled-down hemisphere (SMALL_HEMISPHERE and SMALL_SQUARE: 400
+    cells): resuming exactly does not depend on the mesh, and the shipped one made each run 7
+    times dearer."""
     from mpi4py import MPI
 
     from drape.job import load_job

@@ -43,6 +43,9 @@ HOLDER_LEAST_SLOPE = 0.005
 #: force grows faster than the target, and a slope bounded by 1 would make the moves overshoot
 #: by about as much as they correct, back and forth
 HOLDER_MOST_SLOPE = 10.0
+#: a step's first attempt starts the holder's target on the polynomial through the last this
+#: many converged steps' targets (HolderControl.predict)
+TREND_STEPS = 3
 #: a converged step whose measured holder force is off process.holder_force by more than this
 #: fraction is a warning in the log (with the step and both forces) and is counted in
 #: summary.json: the log and the summary never state a force that was not applied
@@ -122,7 +125,7 @@ class HolderControl:
     GAIN = 0.5
 
     def __init__(self, force: float, area: float, penalty: float, smoothing: float,
-                 opening: float = 0.0, contacts: int = 2):
+                 opening: float = 0.0, contacts: int = 2, trend: bool = False):
         if area <= 0.0:
             raise InputError("no blank under the blank holder", key="process.holder_force",
                              value=force, expected="a blank reaching under the holder's flat "
@@ -135,6 +138,16 @@ class HolderControl:
         #: penalty contacts in series between the holder and the die (2: one ply)
         self.contacts = float(contacts)
         self.target = force
+        #: the target the next attempt starts from, before the trend: F' after the last
+        #: converged step's correction
+        self.committed = force
+        #: process.holder_prediction = "trend": predict() extrapolates, and a step's first
+        #: re-solve uses the slope measured before
+        self.follows_trend = trend
+        #: (load factor, F') of the last TREND_STEPS converged steps, oldest first
+        self.settled: list[tuple[float, float]] = []
+        #: d measured / d F' where the last step's re-solves measured it (1: the flat flange)
+        self.slope = 1.0
 
     def lowering(self) -> float:
         """d (mm): how far below the die's top face the holder's face is (negative: above);
@@ -145,8 +158,58 @@ class HolderControl:
         return (self.opening + d
                 - self.contacts * max(least - self.target, 0.0) / (self.penalty * self.area))
 
-    def update(self, measured: float) -> None:
+    def update(self, measured: float, t: float) -> None:
+        """After the step converged at load factor t with the holder at F' (``target``)
+        measuring ``measured``: keep (t, F') for the trend, and correct F' by GAIN times the
+        error."""
+        self.settled = [*self.settled, (t, self.target)][-TREND_STEPS:]
         self.target += self.GAIN * (self.force - measured)
+        self.committed = self.target
+
+    def predict(self, t: float) -> None:
+        """The target for an attempt at load factor t: the committed one carried on along the
+        polynomial through the last converged steps' targets (quadratic from the third step
+        on). The target the holder needs drifts as the flange draws in and thickens, faster
+        and faster where the holder lifts off wrinkles at its rim; a step that started from
+        the last target missed it by more than the tolerance, and took two or three holder
+        re-solves."""
+        if not self.follows_trend or len(self.settled) < 2:
+            self.target = self.committed
+            return
+        times = [t_i for t_i, _ in self.settled]
+        last_t, last_target = self.settled[-1]
+        ahead = 0.0
+        for i, (t_i, target_i) in enumerate(self.settled):    # Lagrange's form
+            weight = 1.0
+            for j, t_j in enumerate(times):
+                if j != i:
+                    weight *= (t - t_j) / (t_i - t_j)
+            ahead += weight * target_i
+        self.target = self.committed + ahead - last_target
+
+    def first_slope(self) -> float:
+        """d measured / d F' for a step's first re-solve: the last one measured (following the
+        trend), else 1."""
+        return self.slope if self.follows_trend else 1.0
+
+    def state(self) -> dict:
+        """What a checkpoint keeps of the control (:meth:`load_state` restores it): 0-d
+        arrays, none missing (NaN for steps not yet seen)."""
+        state = {"holder_target": np.array(self.committed), "holder_slope": np.array(self.slope)}
+        for k in range(TREND_STEPS):
+            t, target = self.settled[k] if k < len(self.settled) else (np.nan, np.nan)
+            state[f"holder_settled_t{k}"] = np.array(t)
+            state[f"holder_settled_target{k}"] = np.array(target)
+        return state
+
+    def load_state(self, state: dict) -> None:
+        self.committed = self.target = float(state["holder_target"])
+        if "holder_slope" in state:         # absent in a checkpoint of before the trend
+            self.slope = float(state["holder_slope"])
+            self.settled = [(float(state[f"holder_settled_t{k}"]),
+                             float(state[f"holder_settled_target{k}"]))
+                            for k in range(TREND_STEPS)
+                            if not np.isnan(state[f"holder_settled_t{k}"])]
 
 
 class Bracket:

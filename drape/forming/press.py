@@ -192,7 +192,8 @@ class Forming(JobPart):
                     opening, contacts = opening - top, column + 1
             area = self.comm.allreduce(float(self.areas[under].sum()))
             self.holder = HolderControl(self.process.holder_force, area, self.penalty,
-                                        self.smoothing, opening, contacts)
+                                        self.smoothing, opening, contacts,
+                                        trend=self.process.holder_prediction == "trend")
             self.tool_contact.holder_control = self.holder
 
     def _bind_plies(self, problem):
@@ -255,6 +256,9 @@ class Forming(JobPart):
         first step (which only settles the blank onto the die, and has no inertia) the blank
         starts from rest: u* the last step, dtau' = dtau."""
         p = self.problem
+        if self.holder is not None:     # the holder's force target along its trend
+            self.holder.predict(t)
+            self.set_load(t)
         t1, t0 = p.t_committed, p.t_previous
         first = t1 == 0.0 and p.damping == 0.0
         p.set_damping(SETTLING_DAMPING if first else p.damping)
@@ -342,8 +346,10 @@ class Forming(JobPart):
         the holder and ``solve()`` again from there, at most HOLDER_CORRECTIONS times
         (collective). The first move changes the target force by the difference (the flat
         flange carries the target, plus what wrinkles or the flange's edge add, which changes
-        little when it moves), the next ones by a secant step, until the force has been
-        measured both below and above F. From then on the target stays inside that bracket
+        little when it moves), or with process.holder_prediction = "trend" by the difference
+        over the slope d measured / d target the last secant measured (where the fabric holds
+        the holder up at its rim, 0.05-0.1), the next ones by a secant step, until the force
+        has been measured both below and above F. From then on the target stays inside that bracket
         (the force grows with the target, so the bracket holds the answer), at its regula
         falsi point (Illinois: the end kept twice running has its error halved, so that a
         curved response does not stall it). Returns the last result with the iterations and
@@ -377,10 +383,11 @@ class Forming(JobPart):
                 if bracket.closed:
                     target = bracket.inside()
                 else:
-                    slope = 1.0         # d measured / d target: 1 for the flat flange alone
+                    slope = holder.first_slope()    # d measured / d target
                     if last is not None and holder.target != last[0]:
                         slope = (measured - last[1]) / (holder.target - last[0])
-                        slope = min(max(slope, HOLDER_LEAST_SLOPE), HOLDER_MOST_SLOPE)
+                        slope = holder.slope = min(max(slope, HOLDER_LEAST_SLOPE),
+                                                   HOLDER_MOST_SLOPE)
                     target = holder.target + error / slope
                 last = (holder.target, measured)
             else:
@@ -410,7 +417,7 @@ class Forming(JobPart):
         next step from the force it measured (:class:`HolderControl`)."""
         if self.holder is not None and record.t > 0:
             measured = record.columns["holder_force"]
-            self.holder.update(measured)
+            self.holder.update(measured, record.t)
             target = self.process.holder_force
             if abs(measured - target) > HOLDER_WARNING * target:
                 self.holder_warnings.append((record.step, measured))

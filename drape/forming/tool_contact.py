@@ -176,7 +176,7 @@ class ToolContact(PointContribution):
             for name, mask in self.touched.items():
                 state[f"touches_{name}"] = mask.astype(float)
         if self.holder_control is not None:
-            state["holder_target"] = np.array(self.holder_control.target)
+            state.update(self.holder_control.state())
         return state
 
     def load_state(self, state: dict) -> None:
@@ -188,4 +188,4 @@ class ToolContact(PointContribution):
             if self.touched is not None and f"touches_{k}" in state:
                 self.touched[k] = np.asarray(state[f"touches_{k}"]) > 0.5
         if self.holder_control is not None:
-            self.holder_control.target = float(state["holder_target"])
+            self.holder_control.load_state(state)
