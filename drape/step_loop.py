@@ -19,6 +19,10 @@ import numpy as np
 
 from drape.step_record import StepRecord, WorkLedger
 
+#: seconds the ranks wait for each other to raise the same unexpected error before a rank
+#: that raised alone aborts the run (StepLoop._abort_if_alone)
+ALONE_WAIT = 20.0
+
 #: what a run writes in its folder (drape.io.folder.claim refuses to overwrite them silently)
 RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
 #: removed with them by --overwrite
@@ -290,12 +294,15 @@ class StepLoop:
     # --- the whole run ----------------------------------------------------------------------
     def run(self) -> RunSummary:
         """Solve the load steps from the start (or the checkpoint) to t = 1; see run_job."""
-        from drape.errors import RunFailed, WriteFailed
+        from drape.errors import InputError, RunFailed, WriteFailed
         from drape.fe.solver import run_load_steps
         if self.hooks.on_start is not None:
             self.hooks.on_start(RunParts(self.job, self.problem, self.solver, self.motion,
                                          self.parts))
         write_failure = None
+        # a communicator of its own for the ranks' agreement on an unexpected error (a pending
+        # collective on self.comm must not meet it)
+        self._agreement = self.comm.Dup() if self.comm.size > 1 else None
         self.stop.install()
         try:
             start = self.start
@@ -318,18 +325,49 @@ class StepLoop:
                                self.folder) from None
         except RunFailed as failure:
             raise self._failed(failure) from None
+        except InputError:
+            raise
+        except Exception:
+            self._abort_if_alone()
+            raise
         finally:
             self.stop.uninstall()
             self.writer.close()
             self.solver.close()
             if write_failure is None:   # after a write failure the resumed run writes them
                 self._finish_parts()
+            if self._agreement is not None:
+                self._agreement.Free()
         self.checkpoints.finished()
         timings = dict(self.problem.timings)
         timings.update({f"count_{k}": v for k, v in self.problem.counts.items()})
         records = self.records
         return RunSummary(records[-1].step, records[-1].t, time.perf_counter() - self.started,
                           self.folder, records, timings)
+
+    def _abort_if_alone(self) -> None:
+        """An unexpected error (a bug, a hook's exception) may be raised on one rank only: the
+        others then wait in a collective call, and the clean-up below (collective too) would
+        hang the run until the job's time limit. Raised on every rank within ALONE_WAIT
+        seconds (a hook that stops a run on purpose), the run ends in order; else this rank
+        prints its traceback and aborts every rank (exit 1), the converged steps and the last
+        checkpoint on disk."""
+        if self._agreement is None:
+            return
+        import sys
+        import traceback
+        everyone = self._agreement.Ibarrier()
+        deadline = time.monotonic() + ALONE_WAIT
+        while time.monotonic() < deadline:
+            if everyone.Test():
+                return
+            time.sleep(0.01)
+        traceback.print_exc()
+        print(f"drape: rank {self.comm.rank}: unexpected error (above), not raised on the "
+              f"other ranks within {ALONE_WAIT:g} s; aborting all {self.comm.size} ranks; the "
+              f"steps written so far and the last checkpoint are in {self.folder}",
+              file=sys.stderr, flush=True)
+        self.comm.Abort(1)
 
     def _failed(self, failure):
         """A step that did not converge, or a signal: the last converged step's snapshot and
