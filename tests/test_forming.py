@@ -926,7 +926,7 @@ def test_inertia_of_a_motion_quadratic_in_time_is_exact(steps):
                       t_committed=t1, t_previous=t0, damping=0.0,
                       damping_constant=SimpleNamespace(value=None),
                       inertia_constant=SimpleNamespace(value=None))
-    forming = SimpleNamespace(problem=problem, stroke=stroke, process=process)
+    forming = SimpleNamespace(problem=problem, stroke=stroke, process=process, holder=None)
     Forming.predict(forming, t)
     k = problem.inertia_constant.value
     assert k * (u(t) - problem.u_anchor.x.array) == pytest.approx(1e-9 * 1.3 * a, rel=1e-8)
