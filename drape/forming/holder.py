@@ -176,16 +176,10 @@ class HolderControl:
         if not self.follows_trend or len(self.settled) < 2:
             self.target = self.committed
             return
-        times = [t_i for t_i, _ in self.settled]
-        last_t, last_target = self.settled[-1]
-        ahead = 0.0
-        for i, (t_i, target_i) in enumerate(self.settled):    # Lagrange's form
-            weight = 1.0
-            for j, t_j in enumerate(times):
-                if j != i:
-                    weight *= (t - t_j) / (t_i - t_j)
-            ahead += weight * target_i
-        self.target = self.committed + ahead - last_target
+        from scipy.interpolate import BarycentricInterpolator
+        times, targets = zip(*self.settled)
+        ahead = float(BarycentricInterpolator(times, targets)(t))
+        self.target = self.committed + ahead - targets[-1]
 
     def first_slope(self) -> float:
         """d measured / d F' for a step's first re-solve: the last one measured (following the
