@@ -309,17 +309,21 @@ def test_results_are_not_overwritten_silently(tmp_path):
     assert drape(*pf, "--overwrite").returncode == 0
 
 
+#: the ranks' wait for each other in the test (drape's is 20 s, drape.step_loop.ALONE_WAIT)
+WAIT = 5.0
 #: run_job on the short job under mpirun, rank 1 alone raising in its on_step hook at step 3
-ONE_RANK_FAILS = """
+ONE_RANK_FAILS = f"""
 import sys
 from mpi4py import MPI
+import drape.step_loop
 from drape.job import load_job
 from drape.run import run_job
+drape.step_loop.ALONE_WAIT = {WAIT}
 job = load_job(sys.argv[1], overrides=["mesh.size=10", "steps.maximum=0.04",
                                        "output.checkpoint_every=1"])
 def on_step(record, problem):
     if record.step == 3 and MPI.COMM_WORLD.rank in map(int, sys.argv[3].split(",")):
-        raise RuntimeError(f"a fault on ranks {sys.argv[3]}")
+        raise RuntimeError(f"a fault on ranks {{sys.argv[3]}}")
 run_job(job, output=sys.argv[2], on_step=on_step)
 """
 
@@ -332,8 +336,8 @@ def test_an_error_on_one_rank_aborts_the_run_instead_of_hanging(tmp_path, ranks)
     the rank prints its traceback and, the other not raising it within ALONE_WAIT, aborts all
     ranks: a non-zero exit, the steps up to the fault and their checkpoint on disk. Raised on
     both ranks (a hook stopping a run on purpose), the run ends in order as before: the
-    exception's traceback, the files closed (fields.xdmf parses), no abort."""
-    from drape.step_loop import ALONE_WAIT
+    exception's traceback, the files closed (fields.xdmf parses), no abort. The wait is
+    shortened to WAIT here."""
     folder = tmp_path / "run"
     line = ["mpirun", "-n", "2", sys.executable, "-c", ONE_RANK_FAILS,
             str(CONFIGS / "bias_extension.toml"), str(folder), ranks]
@@ -344,8 +348,9 @@ def test_an_error_on_one_rank_aborts_the_run_instead_of_hanging(tmp_path, ranks)
     assert f"RuntimeError: a fault on ranks {ranks}" in failed.stderr
     alone = ranks == "1"
     assert ("drape: rank 1: unexpected error (above), not raised on the other ranks within "
-            f"{ALONE_WAIT:g} s; aborting all 2 ranks" in failed.stderr) == alone
-    assert (time.monotonic() - started > ALONE_WAIT) == alone
+            f"{WAIT:g} s; aborting all 2 ranks" in failed.stderr) == alone
+    if alone:
+        assert time.monotonic() - started > WAIT
     assert [row["step"] for row in read_steps(folder)] == ["0", "1", "2", "3"]
     assert (folder / "checkpoint.npz").exists()
     if not alone:
