@@ -68,7 +68,14 @@ class InputError(Exception):
 
 
 class RunFailed(Exception):
-    """A run that started and could not finish; what converged so far has been written."""
+    """A run that started and could not finish; what converged so far has been written.
+    ``resumable``: a checkpoint of the last converged step exists (`drape run --resume` may go
+    on from it, with other numerical controls: drape.io.checkpoint.CONTROL_KEYS)."""
+
+    resumable = False
+
+    def __reduce__(self):      # broadcast under MPI with its attributes
+        return (type(self), (str(self),), dict(self.__dict__))
 
 
 class Interrupted(RunFailed):
@@ -86,6 +93,3 @@ class WriteFailed(RunFailed):
         self.fields_intact = fields_intact
         self.committed = False      # the failed step was committed in memory (no checkpoint)
         self.resumable = False      # a checkpoint exists: the message gives the resume command
-
-    def __reduce__(self):
-        return (type(self), (str(self),), dict(self.__dict__))

@@ -47,7 +47,8 @@ def add_arguments(parser) -> None:
     again = parser.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true",
                        help="continue from the checkpoint in the results folder (same config "
-                            "and --set values; any number of ranks)")
+                            "and --set values, but for steps.*, solver.* and "
+                            "process.holder_prediction; any number of ranks)")
     again.add_argument("--overwrite", action="store_true",
                        help="start over in a results folder that already holds results")
 
@@ -55,7 +56,7 @@ def add_arguments(parser) -> None:
 def main(args) -> int:
     from mpi4py import MPI
 
-    from drape.errors import Interrupted, WriteFailed
+    from drape.errors import Interrupted, RunFailed, WriteFailed
     from drape.job import load_job
     from drape.fe.solver import parse_option
 
@@ -74,6 +75,13 @@ def main(args) -> int:
             raise
         raise WriteFailed(f"{failed}; resume (once there is space) with: "
                           f"{resume_command(args, comm.size)}") from None
+    except RunFailed as failed:         # Newton did not converge even at steps.minimum
+        if not failed.resumable:
+            raise
+        smaller = f"steps.minimum={job.config.steps.minimum / 10:g}"
+        raise RunFailed(f"{failed}; to go on from the checkpoint with other step or solver "
+                        f"settings: {resume_command(args, comm.size)} --set {smaller} (or "
+                        "other steps.* and solver.* values)") from None
     finally:
         progress.close()
     if comm.rank == 0 and not args.quiet:

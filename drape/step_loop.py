@@ -173,6 +173,9 @@ class StepLoop:
                      f"(t = {self.start[1]:.6g})"
                      + (f", written by {ranks} rank(s), on {comm.size}" if ranks != comm.size
                         else ""))
+            if self.checkpoints.changed_controls:
+                self.say("drape run: resuming with other numerical controls: "
+                         + "; ".join(self.checkpoints.changed_controls))
         cell_fields = {name: field for part in self.parts
                        for name, field in part.cell_fields.items()}
         extra_fields = self.output_fields()
@@ -384,9 +387,11 @@ class StepLoop:
                                f"t = {records[-1].t:.6g}: results"
                                f"{' and checkpoint' if saved else ''} up to it are in {folder}")
         hint = "".join(part.failure_hint for part in self.parts)
-        return RunFailed(f"{failure}; results up to t = {records[-1].t:.6g} (step "
-                         f"{records[-1].step}) are in {folder}"
-                         f"{' (with a checkpoint)' if saved else ''}{hint}")
+        failed = RunFailed(f"{failure}; results up to t = {records[-1].t:.6g} (step "
+                           f"{records[-1].step}) are in {folder}"
+                           f"{' (with a checkpoint)' if saved else ''}{hint}")
+        failed.resumable = saved
+        return failed
 
     def _finish_parts(self) -> None:
         """Each part's files from the records so far (at least one converged step)."""

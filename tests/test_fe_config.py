@@ -202,6 +202,24 @@ def test_steps_cut_back_on_failure_and_grow_when_easy():
     assert len(rejected) == 1
 
 
+def test_a_resume_starts_with_its_saved_step_size_at_most_the_maximum():
+    """A resume continues with the checkpoint's next step size (dt0), unless its config lowered
+    steps.maximum below it (drape.io.checkpoint.CONTROL_KEYS); no dt0: steps.initial."""
+    def steps_from(t0, dt0, **kw):
+        attempts = []
+
+        def attempt(t):
+            attempts.append(t)
+            return SolveResult(True, 5, "CONVERGED", 1e-12, 0.0)     # not easy: no growth
+        run_load_steps(_steps(**kw), np.array([1.0]), attempt, lambda step: None,
+                       lambda: None, t0=t0, step0=3, dt0=dt0)
+        return np.diff([t0] + attempts)
+
+    assert steps_from(0.2, 0.4) == pytest.approx([0.4, 0.4])
+    assert steps_from(0.2, 0.4, maximum=0.2) == pytest.approx([0.2] * 4)
+    assert steps_from(0.2, None, initial=0.3) == pytest.approx([0.8 / 3] * 3)  # landing on 1
+
+
 def test_steps_below_the_minimum_raise_run_failed_naming_step_load_and_residual():
     accepted = []
 

@@ -104,3 +104,44 @@ def test_non_convergence_fails_clearly_and_keeps_the_results(comm, shared_tmp):
         assert message.endswith("(with a checkpoint)")
         with np.load(shared_tmp / "jump" / "checkpoint.npz") as data:
             assert f'"step": {rows[-1]["step"]},' in str(data["meta"])
+
+
+def test_a_failed_run_goes_on_from_its_checkpoint_with_other_controls(comm, shared_tmp):
+    """The jump job (5 mm stretch, then the 10 mm jump at t = 0.5) fails at the jump with at
+    most 6 Newton iterations a step. Resumed from its checkpoint with `solver.max_iterations =
+    40` (a numerical control a resume may change, drape.io.checkpoint.CONTROL_KEYS) it passes
+    the jump and ends at t = 1, saying what it changed; and it ends where the same job run
+    with 40 iterations from the start does, although the two took different steps (the failed
+    run cut back before the jump): the law's increments do not depend on their size (version
+    2), so the converged end states agree to Newton's tolerance (measured 2e-12 relative). A
+    resume that changes the problem (the mesh) is still refused, naming only that key."""
+    from drape.errors import InputError
+    if comm.rank == 0:
+        write_jump(shared_tmp)
+    comm.barrier()
+    path, short = shared_tmp / "jump.toml", ["history.d.values=[0, 5]"]
+    folder = shared_tmp / "failed"
+    with pytest.raises(RunFailed) as caught:
+        run_job(load_job(path, overrides=short), comm, output=folder)
+    assert caught.value.resumable and "Newton did not converge at load factor t = 0.50" in str(
+        caught.value)
+    with pytest.raises(InputError) as refused:
+        run_job(load_job(path, overrides=short + ["mesh.size=5"]), comm, output=folder,
+                resume=True)
+    assert "mesh.size (4.5 -> 5.0)" in str(refused.value)
+    assert "only the steps.*, solver.* and process.holder_prediction" in str(refused.value)
+    said = []
+    more = short + ["solver.max_iterations=40"]
+    resumed = run_job(load_job(path, overrides=more), comm, output=folder, resume=True,
+                      log=said.append)
+    assert any("resuming with other numerical controls: solver.max_iterations (6 -> 40)" in line
+               for line in said)
+    assert resumed.rows[-1].t == 1.0 and resumed.rows[0].t == 0.0
+    assert any(r.cutbacks for r in resumed.rows)          # the failed run's, before the jump
+    straight = run_job(load_job(path, overrides=more), comm, output=shared_tmp / "straight")
+    assert [r.t for r in straight.rows] != [r.t for r in resumed.rows]
+    if comm.rank == 0:
+        a, b = (np.load(shared_tmp / name / "result.npz") for name in ("failed", "straight"))
+        assert np.abs(a["u"] - b["u"]).max() <= 1e-8 * np.abs(b["u"]).max()
+        assert np.abs(a["tau"] - b["tau"]).max() <= 1e-8 * np.abs(b["tau"]).max()
+        assert np.abs(b["u"]).max() == pytest.approx(15.0, rel=1e-3)

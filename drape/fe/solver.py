@@ -309,10 +309,10 @@ def run_load_steps(config, breakpoints, attempt, accept, reject, *, t0: float = 
     commits and writes it; reject() restores the committed state. A failed attempt is retried
     with the step times ``cutback``; an easy one (at most ``easy_iterations``) lets the next
     grow by ``growth`` up to ``maximum``. ``t0``, ``step0``, ``dt0`` continue a run (resume)
-    from step ``step0`` at ``t0`` with the step size ``dt0`` (default ``initial``). Returns the
-    last step.
+    from step ``step0`` at ``t0`` with the step size ``dt0`` (default ``initial``; at most
+    ``maximum``, which a resume may have lowered). Returns the last step.
     """
-    t, dt, number, last = t0, dt0 or config.initial, step0, None
+    t, dt, number, last = t0, min(dt0, config.maximum) if dt0 else config.initial, step0, None
     cutbacks = 0
     while t < 1.0 - 1e-12:
         t_next = next_load(t, dt, breakpoints)

@@ -42,6 +42,10 @@ CHECKPOINT_FILE = "checkpoint.npz"
 VERSION = 4
 #: config keys a resume may change (they do not change the numbers)
 FREE_KEYS = ("title", "material", "output.folder", "output.checkpoint_every")
+#: config keys (and tables, ending in ".") a resume may change that steer how the remaining
+#: steps are solved, not the problem: a run that stopped or failed to converge goes on from
+#: its checkpoint with smaller steps, more iterations or other solver settings (logged)
+CONTROL_KEYS = ("steps.", "solver.", "process.holder_prediction")
 
 
 def signature(job, defaults: bool = False) -> dict[str, str]:
@@ -74,6 +78,11 @@ def signature(job, defaults: bool = False) -> dict[str, str]:
     walk("material", job.params)
     flat.pop("material.name", None)
     return flat
+
+
+def is_control(key: str) -> bool:
+    """Whether a resume may change config ``key`` (CONTROL_KEYS)."""
+    return any(key.startswith(c) if c.endswith(".") else key == c for c in CONTROL_KEYS)
 
 
 def differences(saved: dict, now: dict, defaults: dict | None = None) -> list[str]:
@@ -110,6 +119,7 @@ class Checkpoints:
         self.read_row = read_row
         self.last = None          # the last accepted solver Step
         self.saved_step = None    # number of the step in the file
+        self.changed_controls = []    # what a resume changed (CONTROL_KEYS), "key (a -> b)"
         self.disk = None          # a drape.io.disk.Disk: the ranks agree on write errors
 
     # --- writing ----------------------------------------------------------------------------
@@ -248,6 +258,8 @@ class Checkpoints:
         self.saved_step = meta["step"]
         #: the number of ranks of the run that wrote the checkpoint
         self.saved_ranks = int(meta["ranks"])
+        #: the numerical controls this resume changed, as "key (saved -> now)"
+        self.changed_controls = meta["changed_controls"]
         return meta["step"], meta["t"], meta["dt"]
 
     def _shared_meta(self) -> dict:
@@ -365,11 +377,15 @@ class Checkpoints:
             raise InputError("the checkpoint is of another drape version", source=str(self.path),
                              value=meta.get("version"), expected=f"version {VERSION}")
         changed = differences(meta["signature"], self.signature, self.defaults)
-        if changed:
+        problem = [item for item in changed if not is_control(item.split(" (")[0])]
+        if problem:
             raise InputError("the config or material differs from the checkpoint's: "
-                             + "; ".join(changed), source=str(self.path), key="--resume",
+                             + "; ".join(problem), source=str(self.path), key="--resume",
                              expected="the same config, --set values and material as the "
-                                      "interrupted run; or --overwrite to start over")
+                                      "interrupted run (only the steps.*, solver.* and "
+                                      "process.holder_prediction settings may change); or "
+                                      "--overwrite to start over")
+        meta["changed_controls"] = changed
         return meta
 
 
