@@ -160,17 +160,16 @@ def test_a_failed_run_is_exit_code_1_under_mpi_too(tmp_path):
         assert len(lines) == 1 and "Traceback" not in done.stderr
         assert "run failed: step" in lines[0] and f"are in {folder}" in lines[0]
         assert len((folder / "steps.csv").read_text().splitlines()) > 10
-        # the printed command resumes it (with more iterations it passes the jump at t = 0.5,
-        # and stops again at t = 0.84, where the 25 mm bias extension wrinkles)
+        # the printed command resumes it (and fails at the jump again, after more cutbacks;
+        # with more iterations it goes on: test_fe_divergence.py)
         head, command = lines[0].split("settings: ")
         assert "--set steps.minimum=0.0001 (or other steps.* and solver.* values)" in command
         words = shlex.split(command.split(" (or other")[0])
         mpirun = ["mpirun", "-n", "2"] if ranks > 1 else []
         assert words == mpirun + ["drape", "run", str(config), "--resume", "--output",
                                   str(folder), "--set", "steps.minimum=0.0001"]
-        again = drape(*words[len(mpirun) + 1:], "--set", "solver.max_iterations=40", ranks=ranks)
+        again = drape(*words[len(mpirun) + 1:], ranks=ranks)
         assert again.returncode == 1, again.stderr
-        assert "resuming with other numerical controls: solver.max_iterations (6 -> 40); " \
-               "steps.minimum (0.001 -> 0.0001)" in again.stdout
-        rows = (folder / "steps.csv").read_text().splitlines()
-        assert float(rows[-1].split(",")[1]) > 0.8
+        assert "resuming with other numerical controls: steps.minimum (0.001 -> 0.0001)" in \
+            again.stdout
+        assert "a smaller step" in again.stderr and "below steps.minimum = 0.0001" in again.stderr
