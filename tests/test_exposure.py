@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from drape.forming.exposure import StackExposure
-from drape.forming.ply_contact import StackNodes, split_cells
+from drape.forming.ply_surfaces import StackNodes, split_cells
 
 THICKNESS = 0.3
 
@@ -143,7 +143,8 @@ def test_the_ply_contact_bridges_plies_that_a_partial_ply_leaves_touching():
     contact (the laid heights' test), and those over the patch's last element (5 mm quads'
     diagonal) inside its edge, which the patch uncovers if it slides that far; whole plies get
     no bridge."""
-    from drape.forming.ply_contact import FrictionLaw, PlyContact
+    from drape.forming.ply_contact import PlyContact
+    from drape.forming.ply_pair import FrictionLaw
     laws = [FrictionLaw(0.2), FrictionLaw(0.3)]
     args = ((0.3, 0.2, 0.4), laws, 1.0, 0.1, 0.01)
     nodes, _, _ = stack((100.0, 100.0), (100.0, 100.0), (100.0, 100.0))

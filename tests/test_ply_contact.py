@@ -13,7 +13,9 @@ from drape.config import from_mapping
 from drape.errors import InputError
 from drape.forming.contact import gap_for_pressure
 from drape.forming.plies import PlyConfig, StackConfig, load_stack, ply_heights, single_ply_stack
-from drape.forming.ply_contact import FrictionLaw, PlyContact, StackNodes, split_cells
+from drape.forming.ply_contact import PlyContact
+from drape.forming.ply_pair import FrictionLaw
+from drape.forming.ply_surfaces import StackNodes, split_cells
 from drape.job import BlankConfig, MeshConfig
 from fe_helpers import central_difference, jacobian_action, residual
 

@@ -30,13 +30,14 @@ import numpy as np
 
 from drape.fe.membrane import MembraneProblem
 from drape.forming.layup import laid_heights
-from drape.forming.ply_contact import DEFAULT_MARGIN, PlyContact, StackNodes, split_cells
+from drape.forming.ply_contact import DEFAULT_MARGIN, PlyContact
+from drape.forming.ply_surfaces import StackNodes, split_cells
 
 
 class StackProblem(MembraneProblem):
     """MembraneProblem on a stack with ply-ply contact (module docstring). ``law`` and
     ``yarn_angle_deg``: one for every ply or one per ply (as MembraneProblem); ``laws``: a
-    :class:`~drape.forming.ply_contact.FrictionLaw` per interface; ``penalty`` ε_N (N/mm³),
+    :class:`~drape.forming.ply_pair.FrictionLaw` per interface; ``penalty`` ε_N (N/mm³),
     ``smoothing`` g0 (mm) and ``regularisation`` δ (mm) as the tools' contact."""
 
     def __init__(self, stack_mesh, law, yarn_angle_deg, damping: float, laws,
@@ -329,7 +330,7 @@ def create_stack_problem(comm, stack, mesh_config, contact, law, damping: float,
     press on each other as the fabric presses on the tools. ``options`` go to
     MembraneProblem."""
     from drape.fe.stack_mesh import create_stack_mesh
-    from drape.forming.ply_contact import FrictionLaw
+    from drape.forming.ply_pair import FrictionLaw
     laws = [law] * len(stack.plies) if ply_laws is None else list(ply_laws)
     if len(laws) != len(stack.plies):
         raise ValueError(f"{len(laws)} ply laws for {len(stack.plies)} plies")

@@ -10,14 +10,14 @@ plies that draw in past each other's edges, and a partial ply or a drop-off is w
 mesh covers.
 
 Plain numpy and scipy on the stack's nodes in global numbering
-(:class:`drape.forming.ply_contact.StackNodes`); the points are this rank's.
+(:class:`drape.forming.ply_surfaces.StackNodes`); the points are this rank's.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from drape.forming.ply_contact import StackNodes, closest_on_outline, triangle_outline
+from drape.forming.ply_surfaces import StackNodes, closest_on_outline, triangle_outline
 from drape.forming.layup import closest_triangles
 
 

@@ -2,7 +2,7 @@
 
 A ply lies on the plies below it where they are and on the die where none is; a ply over a
 partial ply (a patch, a drop-off) steps down past its edge onto the next ply below. From the
-plies' flat triangles (:class:`drape.forming.ply_contact.StackNodes`' numbering, any rank):
+plies' flat triangles (:class:`drape.forming.ply_surfaces.StackNodes`' numbering, any rank):
 :func:`laid_heights` gives each point's mid-surface height and :func:`bridged_ply` the ply
 past its neighbour that the ply-ply contact pairs it with where a partial ply between two
 plies leaves them touching.

@@ -19,9 +19,10 @@ coefficient may depend on p and on the slip rate v = |(I - n n)(ds - m)| / dt
 (:class:`FrictionLaw`).
 
 The Jacobian is exact: the geometry (n, g, lambda, ds) is differentiated with respect to the
-12 coordinates of the slave and master nodes (forward mode, :func:`_pair_geometry`), and the
-law's partial derivatives with respect to g, n, ds and mu are read off its tangent
-(:func:`_law_partials`), so nothing of the law is written twice.
+12 coordinates of the slave and master nodes (forward mode, :mod:`drape.forming.ply_pair`),
+and the law's partial derivatives with respect to g, n, ds and mu are read off its tangent
+(:func:`~drape.forming.ply_pair.law_partials`), so nothing of the law is written twice. The
+master triangles and the plies' outlines: :mod:`drape.forming.ply_surfaces`.
 
 Candidate pairs come from scipy's cKDTree on the master triangles' centroids, once per load
 step (:meth:`PlyContact.search`), within the contact reach plus a margin; nodes that move
@@ -39,6 +40,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from drape.forming.contact import SEPARATED, elastic_slip, normal_pressure, traction
+from drape.forming.ply_pair import FrictionLaw, barycentric, edge_ramp, law_partials, pair_geometry
+from drape.forming.ply_surfaces import StackNodes, reference_order, triangle_outline
 from drape.forming.surfaces import closest_point_on_triangles
 
 #: a slave node whose projection falls outside its closest master triangle (beyond a ply's
@@ -67,44 +70,6 @@ BRIDGE_INSET = 1.0
 TIE_TOLERANCE = 1e-6
 
 
-class FrictionLaw:
-    """mu(p, v) = mu0 (1 + p/p_ref)^-a (1 + v/v_ref)^b with its partial derivatives
-    (p in N/mm², v in mm/s; :class:`drape.forming.plies.InterfaceConfig`)."""
-
-    def __init__(self, friction, reference_pressure=1.0, pressure_exponent=0.0,
-                 reference_slip_rate=1.0, rate_exponent=0.0):
-        self.mu0, self.p_ref, self.a = float(friction), float(reference_pressure), \
-            float(pressure_exponent)
-        self.v_ref, self.b = float(reference_slip_rate), float(rate_exponent)
-
-    @classmethod
-    def of(cls, interface) -> "FrictionLaw":
-        return cls(interface.friction, interface.reference_pressure,
-                   interface.pressure_exponent, interface.reference_slip_rate,
-                   interface.rate_exponent)
-
-    @property
-    def rate_dependent(self) -> bool:
-        return self.b != 0.0
-
-    def __call__(self, pressure, rate):
-        """mu, dmu/dp (mm²/N), dmu/dv (s/mm) at N points."""
-        p, v = np.asarray(pressure, dtype=float), np.asarray(rate, dtype=float)
-        mu = self.mu0 * (1.0 + p / self.p_ref) ** -self.a * (1.0 + v / self.v_ref) ** self.b
-        return mu, -self.a * mu / (self.p_ref + p), self.b * mu / (self.v_ref + v)
-
-
-@dataclasses.dataclass
-class StackNodes:
-    """The stack's nodes and master triangles in global numbering (the same on every rank)."""
-
-    reference: np.ndarray     # (N, 3) reference position: X, Y and the laid-up height (mm)
-    ply: np.ndarray           # (N,) the ply of each node
-    area: np.ndarray          # (N,) lumped reference area of each node (mm²)
-    triangles: np.ndarray     # (T, 3) node numbers, counter-clockwise seen from +z
-    triangle_ply: np.ndarray  # (T,)
-
-
 @dataclasses.dataclass
 class Direction:
     """One direction of one interface: slave ply's nodes against master ply's triangles."""
@@ -128,37 +93,6 @@ class PairForces(NamedTuple):
     nodes: np.ndarray
     force: np.ndarray
     jacobian: np.ndarray
-
-
-def split_cells(cells: np.ndarray, reference_xy: np.ndarray, dolfinx_quads: bool = True):
-    """Triangles (T, 3) of the cells (M, 3 or 4): a quadrilateral (in DOLFINx's vertex order,
-    0, 1, 3, 2 around it; else 0, 1, 2, 3) into two along the diagonal nearer the direction
-    of its reference centre from the origin, so that a mesh symmetric about the origin is
-    split symmetrically (the half turn and the mirrors map the triangles onto triangles; a
-    split by vertex order broke a symmetric stack's symmetry); each turned counter-clockwise
-    in the reference plane; also the index of the cell each came from."""
-    cells = np.asarray(cells)
-    if cells.shape[1] == 4:
-        around = cells[:, [0, 1, 3, 2]] if dolfinx_quads else cells.copy()
-        p = reference_xy[around]
-        centre = p.mean(axis=1)
-
-        def alignment(a, b):     # |cos| of the diagonal a-b with the centre's direction
-            d = p[:, b] - p[:, a]
-            return np.abs(np.sum(d * centre, axis=1)) / (np.linalg.norm(d, axis=1)
-                                                         * np.linalg.norm(centre, axis=1)
-                                                         + np.finfo(float).tiny)
-        other = alignment(1, 3) > alignment(0, 2) + 1e-12
-        around[other] = around[other][:, [1, 2, 3, 0]]
-        triangles = np.vstack([around[:, [0, 1, 2]], around[:, [0, 2, 3]]])
-        origin = np.concatenate([np.arange(len(cells))] * 2)
-    else:
-        triangles, origin = cells.copy(), np.arange(len(cells))
-    p = reference_xy[triangles]
-    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
-    clockwise = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
-    triangles[clockwise] = triangles[clockwise][:, [0, 2, 1]]
-    return triangles, origin
 
 
 def _bridges(nodes: StackNodes, thicknesses, laws) -> list[Direction]:
@@ -221,7 +155,7 @@ class PlyContact:
         self.friction_work = np.zeros(len(laws))
         self._trial = [None] * len(self.directions)
         self.candidates = [None] * len(self.directions)
-        self._tie_rank = _reference_order(nodes)
+        self._tie_rank = reference_order(nodes)
         self._reachable = [None] * len(self.directions)
         #: per master triangle, which of its edges (the one opposite each vertex) and which
         #: of its vertices lie on its ply's outline: only past those does a slave lose
@@ -402,7 +336,7 @@ class PlyContact:
             paired = self.paired[i][slaves]
             known = np.flatnonzero(paired >= 0)
             tri = self.nodes.triangles[paired[known]]
-            lam = _barycentric(x[slaves[known]], x[tri[:, 0]], x[tri[:, 1]], x[tri[:, 2]])
+            lam = barycentric(x[slaves[known]], x[tri[:, 0]], x[tri[:, 1]], x[tri[:, 2]])
             left = np.any((lam < -PAIRING_HYSTERESIS) & ~self.outline_edges[paired[known]],
                           axis=1)
             move = np.zeros(len(slaves), dtype=bool)
@@ -426,9 +360,9 @@ class PlyContact:
         slaves, triangles = self._paired(i, x)
         nodes = np.column_stack([slaves, self.nodes.triangles[triangles]]).astype(np.int64)
         memory = self.memory[i][slaves]
-        geometry = _pair_geometry(x[nodes], du[nodes], direction.sign, direction.offset, memory)
+        geometry = pair_geometry(x[nodes], du[nodes], direction.sign, direction.offset, memory)
         g, dg, n, dn, lam, dlam, ds, dds = geometry
-        ramp, d_ramp = _edge_ramp(x[nodes], n, dn, self.outline_edges[triangles],
+        ramp, d_ramp = edge_ramp(x[nodes], n, dn, self.outline_edges[triangles],
                                   self.outline_vertices[triangles],
                                   self.ramp_width[direction.master])
         active = ramp > 0.0
@@ -454,7 +388,7 @@ class PlyContact:
         dmu = dmu_dp[:, None] * (-stiffness[:, None] * dg) + dmu_dv[:, None] * d_rate
         response = traction(g, n, ds, self.penalty, mu, self.regularisation,
                             touching_is_active=True, smoothing=self.smoothing)
-        dt_dg, dt_dn, dt_dds, dt_dmu = _law_partials(response, n, ds, mu)
+        dt_dg, dt_dn, dt_dds, dt_dmu = law_partials(response, n, ds, mu)
         t = response.traction
         dt = (dt_dg[:, :, None] * dg[:, None, :] + np.einsum("pij,pjk->pik", dt_dn, dn)
               + np.einsum("pij,pjk->pik", dt_dds, dds) + dt_dmu[:, :, None] * dmu[:, None, :])
@@ -539,220 +473,3 @@ class PlyContact:
                                                float(-trial["gap"][touching].min()))
             entry["nodes_in_contact"] += int(np.count_nonzero(trial["pressure"] > 0.0))
         return out
-
-
-def _reference_order(nodes: StackNodes) -> np.ndarray:
-    """Each master triangle's place (T,) in the order of its reference centroid's ply,
-    distance from the origin, x and y: the same on any number of ranks, where the node
-    numbers are not; and, nearest first, the same for a triangle and its images under the
-    half turn and the mirrors about the origin, so that a symmetric stack keeps its symmetry
-    (ties are everywhere on plies meshed alike; with (ply, x, y) alone a [0/90, 0/90] stack's
-    shear broke the half turn by 4 % of its peak)."""
-    if not len(nodes.triangles):
-        return np.zeros(0, dtype=np.int64)
-    # rounded: the mean of three coordinates may differ in its last bit with their order
-    centroids = np.round(nodes.reference[nodes.triangles].mean(axis=1), 6)
-    distance = np.round(np.hypot(centroids[:, 0], centroids[:, 1]), 6)
-    order = np.lexsort((centroids[:, 1], centroids[:, 0], distance, nodes.triangle_ply))
-    rank = np.empty(len(order), dtype=np.int64)
-    rank[order] = np.arange(len(order))
-    return rank
-
-
-def _edge_ramp(x, n, dn, outline_edges, outline_vertices, width):
-    """The weight of each of P pairs (x (P, 4, 3): slave, a, b, c; n, dn the triangle's normal
-    and its derivative) by how far the slave lies past the master ply's outline, and its
-    derivative (P, 12). d is the distance, in the triangle's plane, from the slave to the
-    triangle's closest point c when c lies on an edge of the outline (``outline_edges``
-    (P, 3): the edge opposite each vertex is one) or at a vertex of it (``outline_vertices``
-    (P, 3)), else 0; the weight is 1 for d = 0, 0 for d >= ``width`` (mm) and 3 s^2 - 2 s^3,
-    s = 1 - d / width, between: a C1 ramp, so that a node crossing a ply's edge makes no jump.
-
-    d is the same whichever triangle next to the outline is the closest (they share the
-    closest point), so the weight does not jump when that choice changes under a sliding
-    node. Inner edges do not count: where the master ply folds convexly the closest point of
-    a slave lies on an inner edge, just outside the plane's projection, which would cut the
-    weight (and jump with the choice of triangle; a frictionless interface stalled so)."""
-    count = len(x)
-    ramp, d_ramp = np.ones(count), np.zeros((count, 12))
-    if not count:
-        return ramp, d_ramp
-    xs, corners = x[:, 0], x[:, 1:]
-    _, bary, _ = closest_point_on_triangles(xs, corners[:, 0], corners[:, 1], corners[:, 2])
-    outside, on_edge, edge = closest_on_outline(bary, outline_edges, outline_vertices)
-    if not outside.any():
-        return ramp, d_ramp
-    rows = np.flatnonzero(outside)
-    # the closest point c and its derivative: a vertex, or the foot on the edge (i, j)
-    corner_selectors = np.stack(_E[1:])                     # (3, 3, 12): d corner / d x
-    c = np.einsum("pk,pki->pi", bary[rows], corners[rows])
-    dc = np.einsum("pk,kij->pij", bary[rows], corner_selectors)
-    along = rows[on_edge[rows]]
-    if len(along):
-        k = edge[along]
-        i, j = (k + 1) % 3, (k + 2) % 3
-        xi, xj = corners[along, i], corners[along, j]
-        e, r = xj - xi, xs[along] - xi
-        ee = np.sum(e * e, axis=1)
-        tau = np.sum(r * e, axis=1) / ee
-        Ei, Ej = corner_selectors[i], corner_selectors[j]
-        de, dr = Ej - Ei, _E[0] - Ei
-        dtau = ((np.einsum("pik,pi->pk", dr, e) + np.einsum("pi,pik->pk", r, de)) / ee[:, None]
-                - 2.0 * tau[:, None] * np.einsum("pi,pik->pk", e, de) / ee[:, None])
-        where = np.searchsorted(rows, along)
-        dc[where] = Ei + e[:, :, None] * dtau[:, None, :] + tau[:, None, None] * de
-    r = xs[rows] - c
-    dr = _E[0] - dc
-    nr, dnr = n[rows], dn[rows]
-    height = np.sum(r * nr, axis=1)
-    dheight = np.einsum("pik,pi->pk", dr, nr) + np.einsum("pi,pik->pk", r, dnr)
-    q = r - height[:, None] * nr
-    dq = dr - nr[:, :, None] * dheight[:, None, :] - height[:, None, None] * dnr
-    d = np.linalg.norm(q, axis=1)
-    dd = np.einsum("pi,pik->pk", q / np.where(d > 0.0, d, 1.0)[:, None], dq)
-    s = np.clip(1.0 - d / width, 0.0, 1.0)
-    ramp[rows] = s * s * (3.0 - 2.0 * s)
-    d_ramp[rows] = -(6.0 * s * (1.0 - s) / width)[:, None] * dd
-    return ramp, d_ramp
-
-
-def closest_on_outline(bary, outline_edges, outline_vertices):
-    """Of P closest points on triangles, given by their barycentric coordinates bary (P, 3)
-    (exact zeros where the point lies on an edge or at a vertex, as
-    :func:`~drape.forming.surfaces.closest_point_on_triangles` gives them): which lie on an
-    edge of the ply's outline (``outline_edges`` (P, 3): the edge opposite each vertex is one)
-    or at a vertex of it (``outline_vertices`` (P, 3)); and whether each lies on an edge, and
-    which (the index of the vertex opposite it)."""
-    zeros = bary == 0.0
-    on_vertex = zeros.sum(axis=1) == 2
-    on_edge = zeros.sum(axis=1) == 1
-    edge = np.argmax(zeros, axis=1)
-    rows = np.arange(len(bary))
-    outside = ((on_vertex & outline_vertices[rows, np.argmax(bary, axis=1)])
-               | (on_edge & outline_edges[rows, edge]))
-    return outside, on_edge, edge
-
-
-def _barycentric(x, a, b, c) -> np.ndarray:
-    """The barycentric coordinates (P, 3) of the points x's projections on the planes of the
-    triangles (a, b, c) (each (P, 3)), as :func:`_pair_geometry` has them."""
-    e1, e2, r = b - a, c - a, x - a
-    normal = np.cross(e1, e2)
-    nn = np.sum(normal * normal, axis=1)
-    lb = np.sum(np.cross(r, e2) * normal, axis=1) / nn
-    lc = np.sum(np.cross(e1, r) * normal, axis=1) / nn
-    return np.column_stack([1.0 - lb - lc, lb, lc])
-
-
-def triangle_outline(triangles: np.ndarray, triangle_ply: np.ndarray):
-    """Per triangle (T, 3 each): whether the edge opposite each vertex lies on its ply's
-    outline (no other triangle of the ply shares it), and whether each vertex does."""
-    if not len(triangles):
-        return np.zeros((0, 3), dtype=bool), np.zeros((0, 3), dtype=bool)
-    opposite = [(1, 2), (2, 0), (0, 1)]
-    edges = np.stack([np.sort(triangles[:, list(e)], axis=1) for e in opposite], axis=1)
-    keys = np.column_stack([np.repeat(triangle_ply, 3), edges.reshape(-1, 2)])
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    outline = (counts[inverse.ravel()] == 1).reshape(-1, 3)
-    on_outline = np.zeros(int(triangles.max()) + 1, dtype=bool)
-    on_outline[edges[outline].ravel()] = True
-    return outline, on_outline[triangles]
-
-
-# --- forward-mode derivatives of a pair's geometry ----------------------------------------------
-
-def _selector(node: int) -> np.ndarray:
-    """d x_node / d (x_s, x_a, x_b, x_c): (3, 12)."""
-    out = np.zeros((3, 12))
-    out[:, 3 * node: 3 * node + 3] = np.eye(3)
-    return out
-
-
-_E = [_selector(k) for k in range(4)]
-
-
-def _cross_rows(u, v):
-    """u x v over axis 1 (the components), broadcast over the others: np.cross's products,
-    without its copies."""
-    u0, u1, u2 = u[:, 0], u[:, 1], u[:, 2]
-    v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
-    return np.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], axis=1)
-
-
-def _cross(a, da, b, db):
-    """a x b and its derivative, for a, b (P, 3) with derivatives (P, 3, 12)."""
-    return (_cross_rows(a, b),
-            _cross_rows(da, b[:, :, None]) + _cross_rows(a[:, :, None], db))
-
-
-def _dot(a, da, b, db):
-    return (np.sum(a * b, axis=1),
-            np.einsum("pik,pi->pk", da, b) + np.einsum("pi,pik->pk", a, db))
-
-
-def _pair_geometry(x, du, sign, offset, memory):
-    """For P pairs with node positions x (P, 4, 3) (slave, a, b, c) and displacement increments
-    du (P, 4, 3): gap g (P,), normal n (P, 3), barycentric coordinates lambda (P, 3) and slip ds
-    (P, 3), each followed by its derivative with respect to the 12 coordinates (P, ..., 12)."""
-    count = len(x)
-    xs, xa, xb, xc = (x[:, k] for k in range(4))
-    const = lambda e: np.broadcast_to(e, (count, 3, 12))               # noqa: E731
-    e1, de1 = xb - xa, const(_E[2] - _E[1])
-    e2, de2 = xc - xa, const(_E[3] - _E[1])
-    r, dr = xs - xa, const(_E[0] - _E[1])
-    N, dN = _cross(e1, de1, e2, de2)
-    NN, dNN = _dot(N, dN, N, dN)
-    length = np.sqrt(NN)
-    n_up = N / length[:, None]
-    dn_up = (dN - n_up[:, :, None] * np.einsum("pi,pik->pk", n_up, dN)[:, None, :]) \
-        / length[:, None, None]
-    n, dn = sign * n_up, sign * dn_up
-    d, dd = _dot(r, dr, n, dn)
-    g, dg = d - offset, dd
-    rb, drb = _cross(r, dr, e2, de2)
-    qb, dqb = _dot(rb, drb, N, dN)
-    rc, drc = _cross(e1, de1, r, dr)
-    qc, dqc = _dot(rc, drc, N, dN)
-    lb, lc = qb / NN, qc / NN
-    dlb = (dqb - lb[:, None] * dNN) / NN[:, None]
-    dlc = (dqc - lc[:, None] * dNN) / NN[:, None]
-    lam = np.column_stack([1.0 - lb - lc, lb, lc])
-    dlam = np.stack([-dlb - dlc, dlb, dlc], axis=1)
-    ds = du[:, 0] - np.einsum("pk,pki->pi", lam, du[:, 1:]) + memory
-    dds = (const(_E[0]) - np.einsum("pk,kij->pij", lam, np.stack(_E[1:]))
-           - np.einsum("pki,pkj->pij", du[:, 1:], dlam))
-    return g, dg, n, dn, lam, dlam, ds, dds
-
-
-def _law_partials(response, n, ds, mu):
-    """The partial derivatives of the law's traction t(g, n, ds, mu) read off its tangent
-    dt/du = dt/dg n^T + dt/dds (contact.traction, n fixed there):
-
-        dt/dg  = tangent n,     dt/dds = tangent (I - n n),
-        dt/dn  = p I - (n.ds) dt/dds + c n ((n.ds) n + ds)^T,   c = mu p / (delta or s),
-        dt/dmu = (t - p n) / mu,
-
-    c from dt/dds applied to a tangent direction w across the slip: dt/dds w = -c w."""
-    K, t, p = response.tangent, response.traction, response.pressure
-    eye = np.eye(3)
-    projector = eye - n[:, :, None] * n[:, None, :]
-    dt_dg = np.einsum("pij,pj->pi", K, n)
-    dt_dds = np.einsum("pij,pjk->pik", K, projector)
-    tangential = np.einsum("pij,pj->pi", projector, ds)
-    across = np.cross(n, tangential)
-    # no slip direction yet: any tangent direction (the axis least aligned with n crossed in)
-    axis = np.eye(3)[np.argmin(np.abs(n), axis=1)]
-    fallback = np.cross(n, axis)
-    small = np.linalg.norm(across, axis=1) < 1e-200
-    across = np.where(small[:, None], fallback, across)
-    across /= np.linalg.norm(across, axis=1)[:, None]
-    c = -np.einsum("pi,pij,pj->p", across, dt_dds, across)
-    normal_slip = np.sum(n * ds, axis=1)
-    dt_dn = (p[:, None, None] * eye - normal_slip[:, None, None] * dt_dds
-             + c[:, None, None] * n[:, :, None]
-             * (normal_slip[:, None] * n + ds)[:, None, :])
-    mu = np.broadcast_to(mu, p.shape)
-    tangential_traction = t - p[:, None] * n
-    dt_dmu = np.where(mu[:, None] > 0.0,
-                      tangential_traction / np.where(mu > 0.0, mu, 1.0)[:, None], 0.0)
-    return dt_dg, dt_dn, dt_dds, dt_dmu
