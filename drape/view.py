@@ -15,9 +15,11 @@ the command to run on a machine with one is printed. A stack's results (a job wi
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import select
 import shutil
 import subprocess
 import sys
@@ -44,8 +46,8 @@ def add_arguments(parser) -> None:
                              "(default: locking_angle_deg of RESULTS/summary.json if there, "
                              f"else {DEFAULT_LOCKING_ANGLE:g})")
     parser.add_argument("--screenshot", default=None, metavar="FILE.png",
-                        help="render off screen to this PNG and exit (under xvfb-run when "
-                             "there is no display) instead of opening the ParaView GUI")
+                        help="render off screen to this PNG and exit (under an Xvfb of its "
+                             "own when there is no display) instead of opening the ParaView GUI")
     parser.add_argument("--size", default="1200x900", metavar="WxH",
                         help="screenshot size in pixels (default 1200x900)")
     parser.add_argument("--time", type=float, default=None, metavar="T",
@@ -155,7 +157,7 @@ def main(args) -> int:
 
 
 def screenshot(target: str, pvpython: str, extra: list[str], width: int, height: int) -> int:
-    """Render the picture off screen with pvpython (under xvfb-run without a display) to the
+    """Render the picture off screen with pvpython (under Xvfb without a display) to the
     PNG ``target``; one more attempt if ParaView exits without it."""
     png = Path(target).resolve()
     if png.suffix.lower() != ".png" or not png.parent.is_dir():
@@ -163,25 +165,26 @@ def screenshot(target: str, pvpython: str, extra: list[str], width: int, height:
                          value=target, expected="e.g. results/shear.png")
     command = [pvpython, "--force-offscreen-rendering", str(SCRIPT), *extra,
                "--screenshot", str(png), "--size", f"{width}x{height}"]
+    xvfb = None
     if not os.environ.get("DISPLAY"):
         # Debian's ParaView renders through GLX: off screen it still needs an X server
-        xvfb = shutil.which("xvfb-run")
+        xvfb = shutil.which("Xvfb")
         if xvfb is None:
-            raise InputError("no display and no xvfb-run for off-screen rendering",
+            raise InputError("no display and no Xvfb for off-screen rendering",
                              expected=f"`{INSTALL_HINT}` (as root), or a DISPLAY")
-        command = [xvfb, "-a", "-s", f"-screen 0 {width + 64}x{height + 64}x24", *command]
     for attempt in (1, 2):
         if png.exists():
             png.unlink()
-        done = subprocess.run(command, capture_output=True, text=True,
-                              stdin=subprocess.DEVNULL)
+        with x_server(xvfb, width + 64, height + 64) as display:
+            env = dict(os.environ, DISPLAY=display) if display else None
+            done = subprocess.run(command, capture_output=True, text=True, env=env,
+                                  stdin=subprocess.DEVNULL)
         if done.returncode == 0 and png.is_file():
             break
         if done.returncode == 2:        # the script refused its input (e.g. no such ply)
             lines = (done.stderr or "").strip().splitlines() or ["the script refused its input"]
             raise InputError(lines[-1].replace("paraview_view.py: ", "ParaView: "))
-        # pvpython under Xvfb occasionally aborts while creating its GL context (about 1
-        # run in 10 on a loaded machine, not reproducible on demand): one more attempt
+        # should pvpython abort creating its GL context: one more attempt, on a new server
         print(f"drape view: ParaView exited with code {done.returncode} without a picture"
               f"{'; trying once more' if attempt == 1 else ''}", file=sys.stderr)
     else:
@@ -192,6 +195,46 @@ def screenshot(target: str, pvpython: str, extra: list[str], width: int, height:
         raise RunFailed(f"ParaView did not write {png} (exit code {done.returncode}): {detail}")
     print(done.stdout.strip().replace("paraview_view.py:", "drape view:"))
     return 0
+
+
+@contextlib.contextmanager
+def x_server(xvfb: str | None, width: int, height: int, timeout: float = 60.0):
+    """An Xvfb of its own for one rendering (``xvfb``: its path; None: the DISPLAY there is),
+    on a display number it picks itself (``-displayfd``: it binds a free one and writes it
+    when ready; xvfb-run -a takes the first number without a lock file, which a server still
+    shutting down may hold), with ``-noreset``: an X server resets when its last client
+    leaves, and pvpython, which connects more than once, then found no server ("bad X server
+    connection", 1 attempt in 3 on a loaded machine). Yields ":N" (or None)."""
+    if xvfb is None:
+        yield None
+        return
+    read, write = os.pipe()
+    server = subprocess.Popen([xvfb, "-displayfd", str(write), "-screen", "0",
+                               f"{width}x{height}x24", "-nolisten", "tcp", "-noreset"],
+                              pass_fds=(write,),
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    os.close(write)
+    try:
+        number = b""
+        ready, _, _ = select.select([read], [], [], timeout)
+        while ready and not number.endswith(b"\n"):
+            chunk = os.read(read, 16)
+            if not chunk:
+                break
+            number += chunk
+        if not number.strip().isdigit():
+            raise RunFailed(f"Xvfb did not start within {timeout:g} s (exit code "
+                            f"{server.poll()}); try `{xvfb} -displayfd 1` to see why")
+        yield f":{int(number)}"
+    finally:
+        os.close(read)
+        server.terminate()
+        try:
+            server.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
 
 
 def open_gui(given: str, results: Path, angle: float, extra: list[str]) -> int:

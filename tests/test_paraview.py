@@ -64,7 +64,7 @@ def paraview():
         subprocess.run(["apt-get", "install", "-y", "-q", "--no-install-recommends",
                         "-o", "DPkg::Lock::Timeout=600", *APT_PACKAGES],
                        check=True, env=apt, capture_output=True)
-    assert shutil.which("pvpython") and (os.environ.get("DISPLAY") or shutil.which("xvfb-run"))
+    assert shutil.which("pvpython") and (os.environ.get("DISPLAY") or shutil.which("Xvfb"))
     version = subprocess.run(["pvpython", "--version"], capture_output=True, text=True,
                              stdin=subprocess.DEVNULL).stdout
     assert "paraview version 5." in version, version
