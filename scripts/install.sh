@@ -36,7 +36,7 @@ apt_packages=(
   libopenblas0-serial
 )
 if [ "${DRAPE_PARAVIEW:-0}" = 1 ]; then
-  apt_packages+=(paraview python3-paraview xvfb xauth)
+  apt_packages+=(paraview python3-paraview xvfb)
 fi
 
 missing=()

@@ -26,7 +26,7 @@ from conftest import BIAS_EXTENSION_SHORT, CONFIGS, REPO
 
 pytestmark = [pytest.mark.serial, pytest.mark.slow]
 
-APT_PACKAGES = ["paraview", "python3-paraview", "xvfb", "xauth"]
+APT_PACKAGES = ["paraview", "python3-paraview", "xvfb"]
 FIELDS = {"displacement": "point", "shear_angle_deg": "cell", "plastic_shear_angle_deg": "cell",
           "tau": "cell", "warp_tension": "cell", "weft_tension": "cell", "active_surface": "cell",
           # dolfinx 0.5.2 writes vector DG0 functions node-centred (a value of a neighbouring cell)
