@@ -141,7 +141,7 @@ def test_outputs_of_a_forming_run(hemisphere):
     # the config's 1e-4 of a step's first residual, whose scale is the holder's force (to
     # 1e-6 with 1e-10: test_the_forming_tolerance_gives_the_tight_tolerances_answer); the
     # force-controlled holder carries its 200 N within 1 % at every converged step
-    # (Forming.hold_force solves a step again when it does not)
+    # (drape.forming.holder.hold_force solves a step again when it does not)
     imbalance = job.config.solver.rtol * job.config.process.holder_force
     for row in steps[2:]:
         die, punch, holder = (float(row[f"{k}_force"]) for k in ("die", "punch", "holder"))
@@ -413,7 +413,7 @@ def drag(contact, path, depth=-0.01):
 
 
 def stand_in_flange(holder, force, u=None, evaluate=lambda: None):
-    """What Forming.hold_force uses of a Forming, for a holder whose measured force is
+    """What hold_force uses of a Forming, for a holder whose measured force is
     ``force(holder.target)``: the flange records each set_load as (t, target)."""
     from types import SimpleNamespace
     u = u or SimpleNamespace(x=SimpleNamespace(array=np.zeros(1)))
@@ -434,7 +434,7 @@ def stand_in_flange(holder, force, u=None, evaluate=lambda: None):
     (-2196.0, 12.0, 2, 0.0)])       # 4 N above, 44 N below: the bracket's line (a secant slope
                                     # kept to 10 went 4, -44, 8.8, -1.76 N)
 def test_the_holder_is_moved_until_its_force_is_within_one_percent(offset, slope, moves, error):
-    """Forming.hold_force with a stand-in flange whose force answers the holder's target F'
+    """hold_force with a stand-in flange whose force answers the holder's target F'
     linearly, offset + slope F' (what wrinkles or the flange's edge add, and the lift's effect
     when the fabric pushes the holder at its rim): the first re-solve moves F' by F -
     measured, the next ones by a secant step, or, once the force has been seen on both sides
@@ -443,15 +443,14 @@ def test_the_holder_is_moved_until_its_force_is_within_one_percent(offset, slope
     solve), the attempt fails with F' as it was if the first solve's force is off by more
     than 5 % (HOLDER_WARNING), and keeps that solve if not."""
     from drape.forming.holder import (HOLDER_CORRECTIONS, HOLDER_TOLERANCE, HOLDER_WARNING,
-                                      HolderControl)
-    from drape.forming.press import Forming
+                                      HolderControl, hold_force)
     from drape.fe.solver import SolveResult
     F = 200.0
     holder = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1)
     flange = stand_in_flange(holder, lambda target: offset + slope * target)
     solved = SolveResult(True, 7, "CONVERGED_FNORM_RELATIVE", 1e-3, 1.0)
     again = SolveResult(True, 2, "CONVERGED_FNORM_ABS", 1e-3, 0.5)
-    result = Forming.hold_force(flange, 0.3, lambda: again, solved)
+    result = hold_force(flange, 0.3, lambda: again, solved)
     assert flange.tool_force("holder") - F == pytest.approx(error, abs=1e-9)
     assert abs(error) <= HOLDER_TOLERANCE * F
     assert [t for t, _ in flange.loads] == [0.3] * moves
@@ -460,7 +459,7 @@ def test_the_holder_is_moved_until_its_force_is_within_one_percent(offset, slope
 
     holder.target = F
     failed = SolveResult(False, 20, "DIVERGED_MAX_IT", 0.1, 3.0)
-    result = Forming.hold_force(flange, 0.3, lambda: failed, solved)
+    result = hold_force(flange, 0.3, lambda: failed, solved)
     off = abs(offset + slope * F - F) > HOLDER_WARNING * F
     assert result.converged == (not off) and result.reason == (failed if off else solved).reason
     assert result.iterations == 7 + 20 * HOLDER_CORRECTIONS
@@ -468,7 +467,7 @@ def test_the_holder_is_moved_until_its_force_is_within_one_percent(offset, slope
 
 
 def test_a_holder_move_that_fails_is_made_again_half_as_far():
-    """Forming.hold_force where a re-solve fails when the holder moves by more than 2000 N in
+    """hold_force where a re-solve fails when the holder moves by more than 2000 N in
     its target F' from the last converged solve (a stack's first step: the holder reaches
     plies of different heights one after the other), on a flange answering 0.05 F': the
     secant's move from 390 to 4000 fails; the displacement and F' of the solve at 390 come
@@ -476,8 +475,7 @@ def test_a_holder_move_that_fails_is_made_again_half_as_far():
     re-solve starts from the last converged one's displacement; all their iterations count."""
     from types import SimpleNamespace
 
-    from drape.forming.holder import HolderControl
-    from drape.forming.press import Forming
+    from drape.forming.holder import HolderControl, hold_force
     from drape.fe.solver import SolveResult
     F = 200.0
     holder = HolderControl(F, area=1000.0, penalty=1.0, smoothing=0.1)
@@ -498,7 +496,7 @@ def test_a_holder_move_that_fails_is_made_again_half_as_far():
 
     flange = stand_in_flange(holder, lambda target: 0.05 * target, u, evaluate)
     first = SolveResult(True, 7, "CONVERGED_FNORM_RELATIVE", 1e-3, 1.0)
-    result = Forming.hold_force(flange, 0.3, solve, first)
+    result = hold_force(flange, 0.3, solve, first)
     targets = [target for _, target in flange.loads]
     assert targets == pytest.approx([390.0, 4000.0, 390.0, 2195.0, 4000.0])
     assert state["evaluated"] == 1
@@ -508,15 +506,14 @@ def test_a_holder_move_that_fails_is_made_again_half_as_far():
 
 
 def test_the_holder_keeps_the_solve_closest_to_its_force_when_the_moves_are_spent():
-    """Forming.hold_force on a flange whose force jumps about (the holder coming down from the
+    """hold_force on a flange whose force jumps about (the holder coming down from the
     wrinkles at its rim onto the flat flange, or back): measured 230, 205, 197.5 and, after
     the next moves, 260, 215, 190, 230, 250, 185, 240 and 215 N for F = 200 N. The step keeps
     the second re-solve (2.5 N off): its displacement, its holder target and its result, with
     the iterations of all eleven solves."""
     from types import SimpleNamespace
 
-    from drape.forming.holder import HOLDER_CORRECTIONS, HolderControl
-    from drape.forming.press import Forming
+    from drape.forming.holder import HOLDER_CORRECTIONS, HolderControl, hold_force
     from drape.fe.solver import SolveResult
     assert HOLDER_CORRECTIONS == 10
     F = 200.0
@@ -536,7 +533,7 @@ def test_the_holder_keeps_the_solve_closest_to_its_force_when_the_moves_are_spen
 
     flange = stand_in_flange(holder, lambda target: state["force"], u, evaluate)
     first = SolveResult(True, 7, "CONVERGED_FNORM_RELATIVE", 1e-3, 1.0)
-    result = Forming.hold_force(flange, 0.3, solve, first)
+    result = hold_force(flange, 0.3, solve, first)
     assert state["solves"] == 10
     targets = [target for _, target in flange.loads]
     assert targets[0] == pytest.approx(F - 30.0)               # the first move: F - measured
@@ -550,7 +547,7 @@ def test_the_holder_keeps_the_solve_closest_to_its_force_when_the_moves_are_spen
 
 
 def test_the_holder_comes_down_from_the_wrinkles_onto_the_flange():
-    """Forming.hold_force where the force bends in the target F' (the 0/90 double dome's last
+    """hold_force where the force bends in the target F' (the 0/90 double dome's last
     10 mm, from a log of its re-solves): the holder rests on the flange's wrinkles at its rim,
     which answer a move by 3 % of it (486 N at F' = 0 N, 484.8 N at -40 N), until it comes
     down onto the flat flange at F' = 0, which answers about one to one (0.6-1.8 in the log;
@@ -558,8 +555,7 @@ def test_the_holder_comes_down_from_the_wrinkles_onto_the_flange():
     secant's, from their slope, lands on the flange, 453 N above F; from there every target
     lies inside the bracket, and the sixth re-solve lands on F (F' = 14). The secant alone
     (three moves) kept a solve 14.3 N off."""
-    from drape.forming.holder import HOLDER_TOLERANCE, HolderControl
-    from drape.forming.press import Forming
+    from drape.forming.holder import HOLDER_TOLERANCE, HolderControl, hold_force
     from drape.fe.solver import SolveResult
     F = 500.0
 
@@ -570,7 +566,7 @@ def test_the_holder_comes_down_from_the_wrinkles_onto_the_flange():
     holder.target = -40.0
     flange = stand_in_flange(holder, force)
     again = SolveResult(True, 5, "CONVERGED_FNORM_ABS", 1e-3, 0.5)
-    result = Forming.hold_force(flange, 0.865, lambda: again, again)
+    result = hold_force(flange, 0.865, lambda: again, again)
     targets = [target for _, target in flange.loads]
     assert targets[0] == pytest.approx(-40.0 + F - force(-40.0))          # F - measured
     assert force(targets[0]) < F < force(targets[1])                      # bracketed
@@ -654,12 +650,11 @@ def test_the_holder_follows_its_trend_and_a_checkpoint_keeps_it():
 
 
 def test_a_holder_following_its_trend_moves_by_the_slope_it_measured():
-    """Forming.hold_force on a flange answering 0.1 F' + 320 (the fabric holds the holder up
+    """hold_force on a flange answering 0.1 F' + 320 (the fabric holds the holder up
     at its rim): with "last" each step takes two re-solves (the first moves F' by F -
     measured, the secant then lands); following the trend, a step after the first takes one,
     its move scaled by the slope the first step's secant measured."""
-    from drape.forming.holder import HOLDER_TOLERANCE, HolderControl
-    from drape.forming.press import Forming
+    from drape.forming.holder import HOLDER_TOLERANCE, HolderControl, hold_force
     from drape.fe.solver import SolveResult
     F = 200.0
     solved = SolveResult(True, 7, "CONVERGED_FNORM_RELATIVE", 1e-3, 1.0)
@@ -671,7 +666,7 @@ def test_a_holder_following_its_trend_moves_by_the_slope_it_measured():
         for step, count in enumerate(moves):
             flange.loads.clear()
             holder.target = holder.committed
-            Forming.hold_force(flange, 0.3 + 0.1 * step, lambda: again, solved)
+            hold_force(flange, 0.3 + 0.1 * step, lambda: again, solved)
             assert len(flange.loads) == count
             assert abs(flange.tool_force("holder") - F) <= HOLDER_TOLERANCE * F
             assert holder.first_slope() == (pytest.approx(0.1, rel=1e-9) if trend else 1.0)

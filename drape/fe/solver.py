@@ -213,7 +213,7 @@ class NewtonSolver:
         """Newton from the current displacement (the committed one) to the prescribed values.
 
         ``floor`` (N): a residual norm that counts as converged too, besides the tolerances; a
-        step solved again (the holder moved, :meth:`drape.forming.press.Forming.hold_force`) passes
+        step solved again (the holder moved, :func:`drape.forming.holder.hold_force`) passes
         rtol times the step's first residual, so that it stops where the first solve would have."""
         from petsc4py import PETSc
         start = time.perf_counter()

@@ -7,12 +7,13 @@ so that the pinched flange carries the pressure F / A (A the blank's reference a
 holder's flat face: :func:`holder_region` for the built-in tools, :func:`pinch_region` for
 STEP tools). A converged step whose measured holder force is off F by more than
 :data:`HOLDER_TOLERANCE` is solved again with the holder moved
-(:meth:`drape.forming.press.Forming.hold_force`, with a :class:`Bracket`), and after every
+(:func:`hold_force`, with a :class:`Bracket`), and after every
 converged step the height is corrected by the measured force (:class:`HolderControl`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -24,7 +25,7 @@ from drape.forming.contact import gap_for_pressure
 #: fabric counted as under the holder only when it lies on the die's top face (within this, mm)
 ON_DIE_TOLERANCE = 1.0
 #: a converged step's holder force must be within this fraction of process.holder_force, else
-#: the step is solved again with the holder moved (drape.forming.press.Forming.hold_force), at
+#: the step is solved again with the holder moved (hold_force), at
 #: most HOLDER_CORRECTIONS times: corrections between steps alone let the force drift where the
 #: fabric under the holder thickens, as in the locking stage (docs/forming.md, "Blank holder").
 #: Room for several moves: where the holder comes down from the wrinkles at its rim onto the
@@ -209,7 +210,7 @@ class HolderControl:
 class Bracket:
     """The holder targets F' whose measured force came closest to F from below (error F -
     measured > 0) and from above (< 0), for the regula falsi of
-    :meth:`drape.forming.press.Forming.hold_force`."""
+    :func:`hold_force`."""
 
     def __init__(self):
         self.below = self.above = None      # [target, error]
@@ -234,3 +235,87 @@ class Bracket:
         """The target where the line through the two ends meets F."""
         (t0, e0), (t1, e1) = self.below, self.above
         return t0 + e0 * (t1 - t0) / (e0 - e1)
+
+
+def hold_force(forming, t: float, solve, result):
+    """After an attempt of ``forming`` (drape.forming.press.Forming: its holder, tool_force,
+    set_load and problem) at load factor t (``result``, a SolveResult): while it converged and
+    the holder's force is off process.holder_force F by more than HOLDER_TOLERANCE F, move
+    the holder and ``solve()`` again from there, at most HOLDER_CORRECTIONS times
+    (collective). The first move changes the target force by the difference (the flat
+    flange carries the target, plus what wrinkles or the flange's edge add, which changes
+    little when it moves), or with process.holder_prediction = "trend" by the difference
+    over the slope d measured / d target the last secant measured (where the fabric holds
+    the holder up at its rim, 0.05-0.1), the next ones by a secant step, until the force
+    has been measured both below and above F. From then on the target stays inside that bracket
+    (the force grows with the target, so the bracket holds the answer), at its regula
+    falsi point (Illinois: the end kept twice running has its error halved, so that a
+    curved response does not stall it). Returns the last result with the iterations and
+    seconds of all. A re-solve that fails moved the holder too far in one go (a stack's
+    plies of different heights answer a move as the holder reaches the next one: 4 N, then
+    541 N for 200 N): the state of the last converged solve comes back and the next move
+    goes half as far. When all the moves are spent, the solve closest to F is kept: where
+    the holder comes down from resting on the wrinkles at its rim onto the flat flange the
+    force bends sharply, and the last move may land farther off than an earlier one; but
+    where a re-solve failed and the kept one is off F by more than HOLDER_WARNING, the
+    attempt fails (a smaller step may do), the target back to what it was."""
+    holder = forming.holder
+    if holder is None or not result.converged:
+        return result
+    start, iterations, seconds = holder.target, result.iterations, result.seconds
+    last = None                     # (target, measured) of the solve before
+    closest = None                  # (|error|, target, displacement, result) of the best solve
+    bracket = Bracket()
+    halfway = None                  # after a failed re-solve, the next target
+    failure = None                  # the last re-solve that failed
+    for _ in range(HOLDER_CORRECTIONS):
+        if halfway is None:
+            measured = forming.tool_force("holder")
+            error = holder.force - measured
+            if abs(error) <= HOLDER_TOLERANCE * holder.force:
+                break
+            converged = (abs(error), holder.target, forming.problem.u.x.array.copy(), result)
+            if closest is None or abs(error) < closest[0]:
+                closest = converged
+            bracket.add(holder.target, error)
+            if bracket.closed:
+                target = bracket.inside()
+            else:
+                slope = holder.first_slope()    # d measured / d target
+                if last is not None and holder.target != last[0]:
+                    slope = (measured - last[1]) / (holder.target - last[0])
+                    slope = holder.slope = min(max(slope, HOLDER_LEAST_SLOPE),
+                                               HOLDER_MOST_SLOPE)
+                target = holder.target + error / slope
+            last = (holder.target, measured)
+        else:
+            target, halfway = halfway, None
+        holder.target = target
+        forming.set_load(t)
+        result = solve()
+        iterations, seconds = iterations + result.iterations, seconds + result.seconds
+        if not result.converged:    # back to the last converged solve, half the move
+            failure = result
+            halfway = 0.5 * (converged[1] + target)
+            take_solve(forming, t, converged)
+            result = converged[3]
+    else:
+        if abs(holder.force - forming.tool_force("holder")) > closest[0]:
+            take_solve(forming, t, closest)
+            result = closest[3]
+    if failure is not None and abs(holder.force - forming.tool_force("holder")) > (
+            HOLDER_WARNING * holder.force):
+        holder.target = start
+        forming.set_load(t)
+        result = failure
+    return dataclasses.replace(result, iterations=iterations, seconds=seconds)
+
+
+def take_solve(forming, t: float, solve) -> None:
+    """Back to a converged solve (|error|, holder target, displacement, result) of
+    :func:`hold_force`: its holder target and tools at load factor t, its
+    displacement, and the law's and the tools' state there."""
+    _, forming.holder.target, displacement, _ = solve
+    forming.set_load(t)
+    forming.problem.u.x.array[:] = displacement
+    forming.problem.evaluate()

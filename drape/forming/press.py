@@ -11,7 +11,8 @@ face and the holder's lower face are (``tools.*.gap`` = 0).
 * The tools and their contact with the blank: :mod:`drape.forming.tool_contact`.
 * The blank holder is a rigid tool too, force-controlled (:mod:`drape.forming.holder`): a
   converged step whose measured holder force is off F by more than the tolerance is solved
-  again with the holder moved (:meth:`Forming.hold_force`), and after every converged step the
+  again with the holder moved (:func:`~drape.forming.holder.hold_force`), and after every
+  converged step the
   height is corrected by the measured force, as a press's cushion does. Unlike a prescribed
   pressure, a rigid holder keeps the flange from wrinkling under it. A STEP holder is
   force-controlled the same way (``tools.step.holder.control = "force"``, the default): the
@@ -23,21 +24,17 @@ face and the holder's lower face are (``tools.*.gap`` = 0).
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
 
 from drape.fe.job_part import JobPart
-from drape.forming.checks import full_stroke, holder_mode, stroke_of, tool_set
-from drape.forming.holder import (HOLDER_CORRECTIONS, HOLDER_LEAST_SLOPE, HOLDER_MOST_SLOPE,
-                                  HOLDER_TOLERANCE, HOLDER_WARNING, Bracket, HolderControl,
-                                  holder_region, pinch_region)
+from drape.forming.checks import holder_mode, stroke_of, tool_set
+from drape.forming.holder import (HOLDER_WARNING, HolderControl, hold_force, holder_region,
+                                  pinch_region)
 from drape.forming.tool_contact import ToolContact, tool_surfaces
-from drape.job import compose_title, describe_blank, describe_stack
+from drape.job import compose_title, describe_stack
 from drape.job_tables import DEFAULT_FORMING_BENDING
-from drape.reports.oscillation import OSCILLATION_WARNING
 
 # added to a quasi-static forming run's failure: where the steps shrink as the blank wrinkles
 # or snaps into a clearance, inertia carried the runs of docs/forming.md through
@@ -46,8 +43,6 @@ INERTIA_HINT = ("; if the steps shrank where the blank wrinkles or is drawn into
                 "(kg/m^2, e.g. 1) and process.punch_speed (m/s, e.g. 3); docs/forming.md, "
                 "'Inertia'")
 
-FORCE_STROKE_FILE = "force_stroke.csv"
-SUMMARY_FILE = "summary.json"
 #: out-of-plane damping (N/mm^3) of a forming job's first step when its config sets none: that
 #: step lifts the blank as meshed off the die to where the smoothed penalty lets go, and the
 #: parts with no tool pushing back have no out-of-plane stiffness there (docs/forming.md)
@@ -293,8 +288,8 @@ class Forming(JobPart):
 
     # --- per step ---------------------------------------------------------------------------------
     def resolve(self, t: float, solve, result):
-        """The holder's force within its tolerance: :meth:`hold_force`."""
-        return self.hold_force(t, solve, result)
+        """The holder's force within its tolerance: :func:`drape.forming.holder.hold_force`."""
+        return hold_force(self, t, solve, result)
 
     def measure(self, record, records: list, force) -> None:
         """A converged step's forming columns: the tools' forces and contact (:meth:`tool_row`),
@@ -340,78 +335,6 @@ class Forming(JobPart):
         force_z = float(self.comm.allreduce(response.traction.T @ self.areas)[2])
         return force_z if name == "die" else -force_z
 
-    def hold_force(self, t: float, solve, result):
-        """After an attempt at load factor t (``result``, a SolveResult): while it converged and
-        the holder's force is off process.holder_force F by more than HOLDER_TOLERANCE F, move
-        the holder and ``solve()`` again from there, at most HOLDER_CORRECTIONS times
-        (collective). The first move changes the target force by the difference (the flat
-        flange carries the target, plus what wrinkles or the flange's edge add, which changes
-        little when it moves), or with process.holder_prediction = "trend" by the difference
-        over the slope d measured / d target the last secant measured (where the fabric holds
-        the holder up at its rim, 0.05-0.1), the next ones by a secant step, until the force
-        has been measured both below and above F. From then on the target stays inside that bracket
-        (the force grows with the target, so the bracket holds the answer), at its regula
-        falsi point (Illinois: the end kept twice running has its error halved, so that a
-        curved response does not stall it). Returns the last result with the iterations and
-        seconds of all. A re-solve that fails moved the holder too far in one go (a stack's
-        plies of different heights answer a move as the holder reaches the next one: 4 N, then
-        541 N for 200 N): the state of the last converged solve comes back and the next move
-        goes half as far. When all the moves are spent, the solve closest to F is kept: where
-        the holder comes down from resting on the wrinkles at its rim onto the flat flange the
-        force bends sharply, and the last move may land farther off than an earlier one; but
-        where a re-solve failed and the kept one is off F by more than HOLDER_WARNING, the
-        attempt fails (a smaller step may do), the target back to what it was."""
-        holder = self.holder
-        if holder is None or not result.converged:
-            return result
-        start, iterations, seconds = holder.target, result.iterations, result.seconds
-        last = None                     # (target, measured) of the solve before
-        closest = None                  # (|error|, target, displacement, result) of the best solve
-        bracket = Bracket()
-        halfway = None                  # after a failed re-solve, the next target
-        failure = None                  # the last re-solve that failed
-        for _ in range(HOLDER_CORRECTIONS):
-            if halfway is None:
-                measured = self.tool_force("holder")
-                error = holder.force - measured
-                if abs(error) <= HOLDER_TOLERANCE * holder.force:
-                    break
-                converged = (abs(error), holder.target, self.problem.u.x.array.copy(), result)
-                if closest is None or abs(error) < closest[0]:
-                    closest = converged
-                bracket.add(holder.target, error)
-                if bracket.closed:
-                    target = bracket.inside()
-                else:
-                    slope = holder.first_slope()    # d measured / d target
-                    if last is not None and holder.target != last[0]:
-                        slope = (measured - last[1]) / (holder.target - last[0])
-                        slope = holder.slope = min(max(slope, HOLDER_LEAST_SLOPE),
-                                                   HOLDER_MOST_SLOPE)
-                    target = holder.target + error / slope
-                last = (holder.target, measured)
-            else:
-                target, halfway = halfway, None
-            holder.target = target
-            self.set_load(t)
-            result = solve()
-            iterations, seconds = iterations + result.iterations, seconds + result.seconds
-            if not result.converged:    # back to the last converged solve, half the move
-                failure = result
-                halfway = 0.5 * (converged[1] + target)
-                _take_solve(self, t, converged)
-                result = converged[3]
-        else:
-            if abs(holder.force - self.tool_force("holder")) > closest[0]:
-                _take_solve(self, t, closest)
-                result = closest[3]
-        if failure is not None and abs(holder.force - self.tool_force("holder")) > (
-                HOLDER_WARNING * holder.force):
-            holder.target = start
-            self.set_load(t)
-            result = failure
-        return dataclasses.replace(result, iterations=iterations, seconds=seconds)
-
     def control_holder(self, record) -> None:
         """After a converged step (not the initial state): correct the holder's height for the
         next step from the force it measured (:class:`HolderControl`)."""
@@ -435,109 +358,8 @@ class Forming(JobPart):
         return (p.reshape(-1, self.n_extra) * A).sum(axis=1) / A.sum(axis=1)
 
     # --- at the end -------------------------------------------------------------------------------
-    def _holder_summary(self, measured: list) -> dict:
-        """summary.json's holder entries: how it was driven, the force it was driven to (force
-        control only) and the ``measured`` force over the converged steps (never the config's
-        force where it was not applied)."""
-        mode = self.holder_mode if "holder" in self.tool_contact.surfaces else None
-        entries = {"holder_control": mode or "none"}
-        if mode == "force":
-            entries["holder_force_N"] = self.process.holder_force
-            entries["holder_force_steps_off_5pct"] = len(self.holder_warnings)
-        elif mode == "position":
-            entries["holder_force_N"] = float(measured[-1]) if measured else 0.0
-        else:
-            entries["holder_force_N"] = 0.0
-        if measured:
-            entries["holder_force_measured_N"] = [float(min(measured)), float(max(measured))]
-        return entries
-
-    def _run_summary(self, records: list, seconds: float, measured: list) -> dict:
-        """summary.json's entries on the job and the run (rank 0): the tools, the stroke, the
-        punch force (N), the shear oscillation, the holder, the inertia, the steps."""
-        problem, process, last = self.problem, self.process, records[-1]
-        forces = [r.columns.get("punch_force", 0.0) for r in records]
-        return {
-            "title": self.title, "blank": describe_blank(self.blank),
-            "tools": self.kind,
-            "yarn_angle_deg": self.blank.yarn_angle,
-            "stroke_mm": last.columns.get("stroke", 0.0), "configured_stroke_mm": self.stroke,
-            "tools_full_stroke_mm": full_stroke(self.config),
-            "max_punch_force_N": float(max(forces)),
-            # cell-to-cell shear oscillation (drape/reports/oscillation.py, docs/blanks.md)
-            "shear_oscillation_deg": float(last.shear_oscillation_deg),
-            "max_shear_oscillation_deg": float(max(r.shear_oscillation_deg for r in records)),
-            "shear_oscillation_warning_deg": OSCILLATION_WARNING,
-            "punch_force_at_end_N": float(forces[-1]),
-            **self._holder_summary(measured),
-            # the blank's inertia: a dynamic run's forces depend on these (docs/forming.md)
-            "areal_density_kg_per_m2": process.areal_density,
-            "punch_speed_m_per_s": process.punch_speed,
-            "punch_ramp_mm": process.punch_ramp,
-            "max_penetration_mm": float(max(r.columns.get("max_penetration", 0.0)
-                                            for r in records)),
-            "penalty_N_per_mm3": self.penalty,
-            "friction": dict(self.tool_contact.friction),     # μ per tool
-            "regularisation_share": last.regularisation_share,
-            "steps": last.step,
-            "newton_iterations": int(sum(r.newton_iterations for r in records)),
-            "cutbacks": int(sum(r.cutbacks for r in records)),
-            "wall_time_s": seconds, "ranks": self.comm.size,
-            "cells": problem.mesh.topology.index_map(problem.mesh.topology.dim).size_global,
-        }
-
-    def _stack_summary(self, summary: dict, locking: float):
-        """A stack's blocks of summary.json, ``plies`` and ``interfaces``
-        (drape.forming.stack_reports), and its cells by ply for the per-ply shear maps (rank
-        0; None for one blank). Collective."""
-        if self.stack is None:
-            return None
-        from drape.forming import stack_reports
-        summary["plies"] = stack_reports.ply_summaries(self.problem, self.stack, locking,
-                                                       self.comm)
-        summary["interfaces"] = stack_reports.interface_summaries(self.problem, self.comm)
-        return stack_reports.gather_ply_cells(self.problem)
-
     def finish(self, folder: Path, records: list, seconds: float) -> dict:
-        """force_stroke.csv/.png, shear maps, summary.json (collective; rank 0 writes)."""
-        from drape.forming import reports
-        problem = self.problem
-        locking = self.process.locking_angle
-        cells = reports.gather_cells(problem)
-        summary = reports.shear_summary(problem, locking, self.comm)
-        summary.update(reports.draw_in(problem, self.blank, self.comm))
-        measured = [r.columns["holder_force"] for r in records[1:]
-                    if "holder_force" in r.columns]
-        if measured:
-            target = (f"its target {self.process.holder_force:g} N; "
-                      f"{len(self.holder_warnings)} step(s) off it by more than "
-                      f"{100 * HOLDER_WARNING:g} %" if self.holder is not None
-                      else "position-controlled")
-            self.say(f"drape run: holder force measured {min(measured):.5g} to "
-                     f"{max(measured):.5g} N over the converged steps ({target})")
-        plies = self._stack_summary(summary, locking)
-        if self.comm.rank == 0:
-            summary.update(self._run_summary(records, seconds, measured))
-            summary.update(reports.strip_summary(cells, self.blank.yarn_angle))
-            folder = Path(folder)
-            rows = [record.row() for record in records]     # as in steps.csv
-            reports.write_force_stroke(folder, rows)
-            reports.plot_force_stroke(folder, rows, self.title)
-            reports.plot_shear_maps(folder, cells, locking, self.title)
-            if plies is not None:
-                from drape.forming.stack_reports import plot_ply_shear_maps
-                plot_ply_shear_maps(folder, plies, locking, self.title)
-            with (folder / SUMMARY_FILE).open("w") as stream:
-                json.dump(summary, stream, indent=2)
-                stream.write("\n")
-        return summary
-
-
-def _take_solve(forming, t: float, solve) -> None:
-    """Back to a converged solve (|error|, holder target, displacement, result) of
-    :meth:`Forming.hold_force`: its holder target and tools at load factor t, its
-    displacement, and the law's and the tools' state there."""
-    _, forming.holder.target, displacement, _ = solve
-    forming.set_load(t)
-    forming.problem.u.x.array[:] = displacement
-    forming.problem.evaluate()
+        """force_stroke.csv/.png, shear maps, summary.json (collective; rank 0 writes):
+        :func:`drape.forming.run_summary.write_reports`."""
+        from drape.forming.run_summary import write_reports
+        return write_reports(self, folder, records, seconds)
