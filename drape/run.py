@@ -80,8 +80,8 @@ def main(args) -> int:
             raise
         smaller = f"steps.minimum={job.config.steps.minimum / 10:g}"
         raise RunFailed(f"{failed}; to go on from the checkpoint with other step or solver "
-                        f"settings: {resume_command(args, comm.size)} --set {smaller} (or "
-                        "other steps.* and solver.* values)") from None
+                        f"settings: {resume_command(args, comm.size, [smaller])} (or other "
+                        "steps.* and solver.* values)") from None
     finally:
         progress.close()
     if comm.rank == 0 and not args.quiet:
@@ -90,13 +90,15 @@ def main(args) -> int:
     return 0
 
 
-def resume_command(args, ranks: int) -> str:
-    """The command line that resumes the run of ``args``."""
+def resume_command(args, ranks: int, changed: list[str] = ()) -> str:
+    """The command line that resumes the run of ``args``, with the overrides ``changed``
+    ("key=value") in place of the run's own for the same keys."""
     import shlex
     words = ["drape", "run", args.config, "--resume"]
     if args.output:
         words += ["--output", args.output]
-    for item in args.set:
+    keys = {item.split("=", 1)[0].strip() for item in changed}
+    for item in [i for i in args.set if i.split("=", 1)[0].strip() not in keys] + list(changed):
         words += ["--set", item]
     for item in args.petsc_option:
         words += ["--petsc-option", item]

@@ -239,3 +239,24 @@ def test_steps_below_the_minimum_raise_run_failed_naming_step_load_and_residual(
 def test_the_docs_list_every_key():
     from conftest import REPO
     assert key_table() in (REPO / "docs" / "fe-solver.md").read_text()
+
+
+def test_the_resume_command_repeats_the_run_with_the_changed_overrides_in_place():
+    """drape.run.resume_command: the run's config, --output, --set and --petsc-option words
+    with --resume, under mpirun on more than one rank; an override it is given replaces the
+    run's own for the same key (a failed run suggests a smaller steps.minimum) instead of
+    following it."""
+    import argparse
+    import shlex
+
+    from drape.run import resume_command
+    args = argparse.Namespace(config="jobs/my part.toml", output="out",
+                              petsc_option=["snes_monitor"],
+                              set=["steps.minimum=0.01", "output.xdmf=false"])
+    assert shlex.split(resume_command(args, 1)) == [
+        "drape", "run", "jobs/my part.toml", "--resume", "--output", "out", "--set",
+        "steps.minimum=0.01", "--set", "output.xdmf=false", "--petsc-option", "snes_monitor"]
+    assert shlex.split(resume_command(args, 2, ["steps.minimum=0.001"])) == [
+        "mpirun", "-n", "2", "drape", "run", "jobs/my part.toml", "--resume", "--output", "out",
+        "--set", "output.xdmf=false", "--set", "steps.minimum=0.001", "--petsc-option",
+        "snes_monitor"]
