@@ -180,6 +180,33 @@ def test_a_stack_without_a_process_is_refused(tmp_path):
         load_job(path)
 
 
+@pytest.mark.parametrize("config, warned", [("double_dome_4ply.toml", True),
+                                             ("hemisphere_2ply.toml", False),
+                                             ("double_dome.toml", False)])
+def test_a_stack_with_no_room_between_punch_and_die_is_a_warning(comm, config, warned):
+    """The four 0.3 mm plies' mid-surfaces span 0.15 to 1.05 mm: 0.9 mm, and five contacts
+    (punch, three interfaces, die) each push from g0 = 0.375 mm (h = 7.5 mm): 2.775 mm, more
+    than the double dome's 2 mm clearance, which the run says at its start (its last 2 mm
+    squeeze the stack: docs/plies-forming.md). The two-ply hemisphere (0.3 mm + 3 x 0.195 mm
+    against 5 mm) and one ply (no stack) are not warned of."""
+    from drape.forming.checks import squeezed_thickness, tool_clearance
+    from drape.forming.press import Forming
+    from drape.job import load_job
+    assert squeezed_thickness([0.3] * 4, 0.375) == pytest.approx(1.05 - 0.15 + 5 * 0.375)
+    assert squeezed_thickness([0.2, 0.4], 0.1) == pytest.approx(0.3 + 3 * 0.1)
+    job = load_job(CONFIGS / config)
+    said = []
+    forming = Forming(job, comm, log=said.append)
+    warning = [line for line in said if "warning" in line]
+    assert bool(warning) == warned, said
+    if warned:
+        assert tool_clearance(job.config) == 2.0 and forming.smoothing == 0.375
+        assert ("stack needs 2.77 mm between punch and die (its outer mid-surfaces 0.9 mm "
+                "apart, and 5 contacts each pushing from 0.375 mm), the tools leave 2 mm"
+                in warning[0])
+        assert "tools.double_dome.clearance" in warning[0]
+
+
 def test_holder_control_of_a_stack_closes_every_gap_in_series():
     """n plies under the holder: n + 1 penalty contacts in series at the same pressure, and
     the top ply's mid-surface z_top above the die: the holder stands (n + 1) g(F / A) - z_top

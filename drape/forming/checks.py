@@ -43,6 +43,27 @@ def stroke_of(config) -> float:
     return stroke if stroke is not None else full_stroke(config)
 
 
+def tool_clearance(config) -> float | None:
+    """The room the built-in tools leave the fabric between punch and die (mm): the double
+    dome's normal clearance at full stroke, the hemisphere's radial gap between punch and die
+    opening; None for STEP tools."""
+    tools, dims = tool_set(config)
+    if tools.kind == "double_dome":
+        return dims.clearance
+    if tools.kind == "hemisphere":
+        return dims.die_opening_radius - dims.punch_radius
+    return None
+
+
+def squeezed_thickness(thicknesses, smoothing: float) -> float:
+    """The punch-to-die distance (mm) below which a stack of plies (``thicknesses``, mm) is
+    squeezed where all of them overlap: the tools' contact touches the outer plies'
+    mid-surfaces, adjacent mid-surfaces lie (t_i + t_j) / 2 apart, and every contact (the
+    two tools' and each interface's) pushes from a gap of ``smoothing`` (g0, mm) on."""
+    t = list(thicknesses)
+    return sum(t) - 0.5 * (t[0] + t[-1]) + (len(t) + 1) * smoothing
+
+
 def smallest_wrapped_radius(config) -> float | None:
     """The smallest tool radius the fabric wraps around (mm): die entry and punch edge fillets."""
     tools, dims = tool_set(config)

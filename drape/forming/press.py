@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from drape.fe.job_part import JobPart
-from drape.forming.checks import holder_mode, stroke_of, tool_set
+from drape.forming.checks import (holder_mode, squeezed_thickness, stroke_of, tool_clearance,
+                                  tool_set)
 from drape.forming.holder import (HOLDER_WARNING, HolderControl, hold_force, holder_region,
                                   pinch_region)
 from drape.forming.tool_contact import ToolContact, tool_surfaces
@@ -103,6 +104,7 @@ class Forming(JobPart):
         self.holder_warnings = []
         self.say = log or (lambda *_: None)
         self._describe("holder" in surfaces)
+        self._warn_if_squeezed()
 
     def create_problem(self, job, comm, law, damping: float, centred: bool, options: dict):
         """A stack of two plies or more: its StackProblem (drape.forming.plies); one blank:
@@ -133,6 +135,24 @@ class Forming(JobPart):
                  + (f", inertia {process.areal_density:g} kg/m^2, the punch at "
                     f"{process.punch_speed:g} m/s after {process.punch_ramp:g} mm"
                     if process.areal_density > 0 else ""))
+
+    def _warn_if_squeezed(self) -> None:
+        """A stack that needs more room between punch and die than the tools leave is squeezed
+        near full stroke, where its force is then the contact penalty's, not the fabric's: say
+        so at the start (docs/plies-forming.md)."""
+        clearance = tool_clearance(self.config)
+        if self.stack is None or clearance is None:
+            return
+        plies = self.stack.plies
+        needed = squeezed_thickness([ply.thickness for ply in plies], self.smoothing)
+        if needed > clearance:
+            self.say(f"drape run: warning: where its {len(plies)} plies overlap the stack needs "
+                     f"{needed:.3g} mm between punch and die (its outer mid-surfaces "
+                     f"{needed - (len(plies) + 1) * self.smoothing:.3g} mm apart, and "
+                     f"{len(plies) + 1} contacts each pushing from {self.smoothing:.3g} mm), "
+                     f"the tools leave {clearance:g} mm: near full stroke the punch squeezes "
+                     f"it, and the punch force and the shear there are the contact penalty's; "
+                     f"a wider tools.{self.kind}.clearance (or die opening) gives it room")
 
     def _friction_text(self) -> str:
         """μ for the log: one number, or one per tool where they differ."""
