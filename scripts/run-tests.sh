@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # Install what is needed (idempotent), lint (ruff, config in pyproject.toml; a finding fails
 # the command) and run the whole test suite: serially, then under `mpirun -n 2` (tests marked
-# `serial` are skipped there; tests marked `two_ranks`, in-process forming runs, are skipped in
-# the serial pass and run in this one, on both cores: tests/conftest.py). The serial pass runs
-# its tests on two pytest-xdist workers, one per core (tests sharing a module or session fixture
-# on the same one: tests/conftest.py). Extra arguments go to pytest (both passes).
+# `serial`, among them the in-process forming runs whose checks do not depend on the number of
+# ranks, are skipped there: tests/conftest.py). The serial pass runs its tests on two
+# pytest-xdist workers, one per core (tests sharing a module or session fixture on the same
+# one: tests/conftest.py). Extra arguments go to pytest (both passes).
 # DRAPE_FULL_STROKE=0 leaves out the shipped double domes pressed to their full 58 mm (minutes
 # each, on one rank each, first in the serial pass; the shipped tools allow no coarser mesh),
 # for a quicker loop while working; CI and the README's command run them.
@@ -23,8 +23,8 @@ python=.venv/bin/python
 echo "== lint (ruff check)"
 .venv/bin/ruff check --no-cache .
 
-echo "== tests, serial, on 2 workers (two_ranks tests wait for the next pass)"
-DRAPE_TWO_RANK_PASS=1 "$python" -m pytest -q -n 2 --dist loadgroup "$@"
+echo "== tests, serial, on 2 workers"
+"$python" -m pytest -q -n 2 --dist loadgroup "$@"
 
 echo "== tests, mpirun -n 2 (rank 0 shown; rank 1 shown if it fails)"
 log=$(mktemp)

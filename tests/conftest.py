@@ -1,12 +1,13 @@
 """Shared test setup: MPI awareness, paths and the forming run several files check.
 
 The suite runs twice (scripts/run-tests.sh): serially and under `mpirun -n 2`. Tests marked
-``serial`` (command-line runs that start their own processes, comparisons of 1 and 2 ranks)
-run only in the serial pass. Tests marked ``two_ranks`` (in-process forming runs of tens of
-seconds or minutes whose checks do not depend on the number of ranks; that 1 rank gives what
-2 give is tests/test_fe_cli.py's) run in the 2-rank pass, where they use both cores, and are
-skipped in the serial pass when DRAPE_TWO_RANK_PASS=1 says that a 2-rank pass follows (as
-scripts/run-tests.sh does); run alone, e.g. `pytest tests/test_forming.py`, they run serially.
+``serial`` run only in the serial pass: command-line runs that start their own processes,
+comparisons of 1 and 2 ranks, and the in-process forming runs of tens of seconds whose checks
+do not depend on the number of ranks (one rank each on the serial pass's two workers costs
+about half the processor time of two ranks on a run of a few thousand unknowns). What runs on
+2 ranks in the 2-rank pass is drape's parallel code: the unit tests with MPI in them, the
+stack's 1-rank-against-2 and resumed-on-other-ranks runs; the shipped jobs on 1 and 2 ranks
+are tests/test_fe_cli.py's, stopped and resumed on 2 ranks tests/test_fe_faults.py's.
 Tests marked ``full_stroke`` (the shipped double domes pressed to their full 58 mm, minutes
 each) are part of the suite: the shipped tools allow no coarser mesh (two elements over the
 10 mm fillets: 7.85 mm at most), so they cannot be made cheaper without becoming another job,
@@ -40,8 +41,6 @@ def comm_size() -> int:
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "serial: run only in the serial pass (not under mpirun)")
-    config.addinivalue_line("markers", "two_ranks: run in the 2-rank pass only, when the suite "
-                            "has one (DRAPE_TWO_RANK_PASS=1 in the serial pass)")
     config.addinivalue_line("markers", "full_stroke: a shipped forming job to its full stroke, "
                             "left out when DRAPE_FULL_STROKE=0")
 
@@ -95,11 +94,6 @@ def pytest_collection_modifyitems(config, items):
         skip = pytest.mark.skip(reason="serial-only test, skipped under mpirun")
         for item in items:
             if "serial" in item.keywords:
-                item.add_marker(skip)
-    elif os.environ.get("DRAPE_TWO_RANK_PASS") == "1":
-        skip = pytest.mark.skip(reason="run in the 2-rank pass (DRAPE_TWO_RANK_PASS=1)")
-        for item in items:
-            if "two_ranks" in item.keywords:
                 item.add_marker(skip)
 
 

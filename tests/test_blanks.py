@@ -5,8 +5,8 @@ and no cell-to-cell oscillation; the oscillation measure itself (drape/reports/o
 
 The forming runs use a hemisphere scaled down (tests/conftest.py's SMALL_HEMISPHERE: punch R
 30 mm, die fillet 8 mm, so 6 mm elements are allowed: about 430 cells) and one run each feeds
-several assertions; they are marked ``two_ranks`` (tests/conftest.py): the suite runs them
-once, under `mpirun -n 2`.
+several assertions; they are marked ``serial`` (tests/conftest.py): the suite runs them
+once, on one rank.
 """
 
 import json
@@ -219,7 +219,7 @@ def test_the_oscillation_measure_is_a_checkerboards_amplitude_and_blind_to_gradi
 
 # --- forming to full stroke -------------------------------------------------------------------
 
-@pytest.mark.two_ranks   # in-process forming runs (tests/conftest.py)
+@pytest.mark.serial   # in-process forming runs (tests/conftest.py)
 def test_disc_and_octagon_reach_full_stroke_with_a_clean_field(formed):
     """Full stroke statically, the title naming the blank, the oscillation measure below its
     warning, and the strip measured: a small share of the blank, its yarn strain (at the
@@ -240,7 +240,7 @@ def test_disc_and_octagon_reach_full_stroke_with_a_clean_field(formed):
     assert summary["max_yarn_strain_aligned"] < 0.003
 
 
-@pytest.mark.two_ranks   # in-process forming runs (tests/conftest.py)
+@pytest.mark.serial   # in-process forming runs (tests/conftest.py)
 def test_disc_and_octagon_shear_fields_have_the_square_symmetry(formed):
     """As the square's (tests/test_forming.py): the field is mirror-symmetric in the diagonal
     to Newton's tolerance, antisymmetric in the yarn axes within the law's even terms (5 % of

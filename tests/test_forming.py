@@ -3,7 +3,7 @@ forming run writes, penetration, the force-controlled holder, the double dome st
 
 The runs are short (the punch 5 mm down on the coarsest mesh the tools allow): the default
 20 mm run takes minutes (docs/forming.md). The tests that run forming jobs in this process are
-marked ``two_ranks`` (tests/conftest.py): the suite runs them once, under `mpirun -n 2`.
+marked ``serial`` (tests/conftest.py): the suite runs them once, on one rank.
 """
 
 import csv
@@ -118,7 +118,7 @@ def rows_of(folder, name):
         return list(csv.DictReader(stream))
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_outputs_of_a_forming_run(hemisphere):
     job, summary, folder = hemisphere
     for name in ("fields.xdmf", "steps.csv", "force_stroke.csv", "force_stroke.png",
@@ -151,7 +151,7 @@ def test_outputs_of_a_forming_run(hemisphere):
     assert "contact_pressure" in (folder / "fields.xdmf").read_text()
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_the_forming_jacobian_is_the_derivative_of_the_residual(converged):
     """At the last step of a 5 mm run of the scaled-down hemisphere (the converged run, whose
     consistent tangent is used everywhere: the shipped band, Newton's tangent stiffened near
@@ -185,7 +185,7 @@ def test_the_forming_jacobian_is_the_derivative_of_the_residual(converged):
     assert size > 0.1 and bare <= 1e-9 * size and error <= 2e-2 * size
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_penetration_stays_far_below_the_element_size(hemisphere):
     """The smoothed penalty pushes from g0 = 0.05 h off a tool's surface and reaches the plain
     penalty's slope at the surface (docs/forming.md); at the pressures of these runs the fabric
@@ -196,7 +196,7 @@ def test_penetration_stays_far_below_the_element_size(hemisphere):
         assert float(row["max_penetration"]) < 0.01 * h, row["step"]
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 @pytest.mark.parametrize("areal_density", [0.0, 1.0])
 def test_a_stalled_quasi_static_forming_run_suggests_the_blanks_inertia(shared_tmp,
                                                                          areal_density):
@@ -238,7 +238,7 @@ def point_fields(folder):
     return data["point_xy"], data["gamma_t_deg"]
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp, converged):
     """The forming configs stop Newton at a residual 1e-4 of the step's first (solver.rtol).
     On the same load steps (the scaled-down hemisphere, FIXED_SMALL: 5 mm in fixed 0.5 mm
@@ -267,7 +267,7 @@ def test_the_forming_tolerance_gives_the_tight_tolerances_answer(shared_tmp, con
     assert iterations[0] < iterations[1]
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_tmp, converged):
     """The hemisphere configs stiffen Newton's shear tangent (towards the elastic one) at law
     points loaded only just past their elastic range (solver.neutral_loading_band,
@@ -307,7 +307,7 @@ def test_the_neutral_loading_tangent_changes_newtons_path_not_the_answer(shared_
           f"{sum(r.newton_iterations for r in plain.rows)} without")
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
     """Mirror in the diagonal (x <-> y swaps warp and weft: gamma unchanged) to Newton's
     tolerance; mirror in a yarn axis (x -> -x reverses the warp: gamma -> -gamma) only as far
@@ -333,7 +333,7 @@ def test_hemisphere_0_90_shear_has_the_square_symmetry(hemisphere):
     assert abs(abs(xy[i, 0]) - abs(xy[i, 1])) < 3.0     # on a diagonal, within an element
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_hemisphere_45_on_a_disc_is_the_0_90_field_turned(tmp_path):
     """On a disc blank (an outline with no direction, unlike the square) the tools are
     axisymmetric and the yarn-aligned clipped lattice turns with the yarns, so the +-45 problem is
@@ -358,7 +358,7 @@ def test_hemisphere_45_on_a_disc_is_the_0_90_field_turned(tmp_path):
     assert np.abs(g45 - g0[j]).max() < 1e-6 * top
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_hemisphere_45_square_has_the_0_90_symmetry_turned(tmp_path):
     """The shipped +-45 job (the same square blank, yarns along its diagonals) is not the 0/90
     one turned (the outline differs relative to the yarns: its punch force at 5 mm is 3.5 N
@@ -794,7 +794,7 @@ def assert_double_dome_symmetry(job, xy, gamma):
     return top
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 @pytest.mark.parametrize("config", ["double_dome.toml", "double_dome_45.toml"])
 def test_double_domes_keep_the_tools_symmetry_and_stay_outside_them(double_dome_short, comm,
                                                                       config):

@@ -4,7 +4,8 @@ contact between them, the hemisphere's symmetry, 1 rank against 2, resuming.
 
 The runs are small: the hemisphere tools scaled down (tests/test_blanks.py's SMALL: punch
 R 30 mm, 6 mm mesh, 140 mm square plies, 576 cells each), the punch a few mm down. Forming
-runs in this process are marked ``two_ranks`` (tests/conftest.py).
+runs in this process are marked ``serial`` (tests/conftest.py), but for the runs on 2 ranks
+against 1 rank: the 2-rank pass's.
 """
 
 import json
@@ -333,7 +334,7 @@ def equal_to_round_off(a, b, bound: float, scale: float = 0.0) -> bool:
     return a == b
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_a_one_ply_stack_is_todays_job_to_round_off(one_ply_runs):
     """steps.csv (but its seconds), summary.json (but the wall time) and result.npz equal:
     bit for bit on 1 rank; on 2 to ROUND_OFF of each column's largest value (the residual's
@@ -378,7 +379,7 @@ def test_a_one_ply_stack_is_todays_job_to_round_off(one_ply_runs):
                 assert np.array_equal(x, y), name
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_the_die_holds_a_top_ply_that_reaches_past_the_bottom_one(tmp_path):
     """A 140 mm square ply over a 100 mm one, the punch 0.2 mm down in one step: the die
     touches the top ply where the bottom one does not cover it (before, the die saw the bottom
@@ -440,7 +441,7 @@ def test_the_die_holds_a_top_ply_that_reaches_past_the_bottom_one(tmp_path):
     assert not comm.allreduce(bool(punch[bottom_ply].any()), op=MPI.LOR)
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_a_patch_on_top_leaves_the_holder_to_the_ply_below(tmp_path):
     """A R 20 mm ±45 disc (a reinforcement patch under the punch) on the 140 mm square ply,
     pressed 3 mm: the holder (r >= 45 mm) reaches only the square. Before, the holder's
@@ -478,7 +479,7 @@ def test_a_patch_on_top_leaves_the_holder_to_the_ply_below(tmp_path):
     assert force("punch", 1) > 0.0
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_a_patch_between_two_plies_lets_them_touch_past_its_edge(tmp_path):
     """A R 20 mm ±45 disc between two 140 mm squares (an interleaved patch, a drop-off),
     pressed 3 mm. Before, the ply contact paired adjacent plies only and every ply lay flat at
@@ -511,7 +512,7 @@ def test_a_patch_between_two_plies_lets_them_touch_past_its_edge(tmp_path):
     assert (x[far, 2] - x[below, 2]).min() > THICKNESS - 0.01 * h
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_a_patch_between_two_plies_holds_where_the_top_ply_steps_down(tmp_path):
     """The same stack, the punch 0.66 mm down in two steps. The top square steps down from the
     patch over the element past its edge, over the die's opening, where the two squares hang
@@ -573,7 +574,7 @@ def frictionless(root):
 FRICTIONLESS_SMOOTHING = 0.02
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_two_plies_on_a_frictionless_interface_form_like_one_ply_each(tmp_path):
     """Two identical plies that slide freely on each other: each is held by the friction of
     one tool face (the top ply by the holder's, mu F; the bottom one by the die's, mu F), as
@@ -616,7 +617,7 @@ def ply_tension(problem):
 DIE_FRICTION, HOLDER_FRICTION = 0.05, 0.35
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_two_plies_with_a_high_friction_draw_in_as_one_ply_of_double_stiffness(tmp_path):
     """Two identical plies on an interface of mu = 5 against one ply of double stiffness (the
     material's areal factor mu = 2: tension and shear stress doubled, twice the thickness;
@@ -706,7 +707,7 @@ def two_plies(tmp_path_factory):
     return root, path, job, summary, problem, penetration
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_plies_do_not_interpenetrate(two_plies):
     """The interface's largest penetration at every step stays below 1 % of h, as the tools'
     (the same penalty: eps = c mu max(K1, K2) / h^2); and at the last step every pair's gap is
@@ -729,7 +730,7 @@ def test_plies_do_not_interpenetrate(two_plies):
     assert -g_min < 0.01 * h
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_the_interface_carries_what_the_die_carries_and_reports_per_ply(two_plies):
     """The bottom ply touches only the die and the ply above it, so at every converged step
     the interface's normal force balances the die's (summary.json's ``interfaces`` block
@@ -756,7 +757,7 @@ def test_the_interface_carries_what_the_die_carries_and_reports_per_ply(two_plie
     print(f"\ninterface normal force {interface['normal_force_N']:.6g} N, die force {die:.6g} N")
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_a_0_90_stack_keeps_the_hemispheres_square_symmetry(two_plies):
     """Each ply of a [0/90, 0/90] stack: mirrored in the diagonal (x <-> y swaps warp and
     weft, gamma unchanged), turned half about z (gamma unchanged) and mirrored in a yarn axis
@@ -777,8 +778,7 @@ def test_a_0_90_stack_keeps_the_hemispheres_square_symmetry(two_plies):
         assert np.abs(images(lambda p: p * [-1, 1]) + gamma).max() < 0.01 * top, k   # (-x, y)
 
 
-@pytest.mark.two_ranks
-def test_one_rank_equals_two_ranks(two_plies, tmp_path):
+def test_one_rank_equals_two_ranks(two_plies, tmp_path):     # the 2-rank pass's
     """The stack run on COMM_SELF (rank 0) against the same run on 2 ranks: the same steps
     and points; punch and holder forces and each ply's shear field to round-off, as a single
     ply (tests/test_fe_cli.py): 1e-8 relative (measured 2e-14 and 6e-14). Before the second
@@ -810,8 +810,8 @@ def test_one_rank_equals_two_ranks(two_plies, tmp_path):
     assert shear < 1e-8
 
 
-@pytest.mark.two_ranks
-@pytest.mark.parametrize("stopped_on", ["the same ranks", "one rank"])
+@pytest.mark.parametrize("stopped_on", [pytest.param("the same ranks", marks=pytest.mark.serial),
+                                        "one rank"])     # the 2-rank pass's
 def test_a_resumed_stack_run_equals_the_uninterrupted_one(two_plies, stopped_on):
     """Stopped after step 2 and resumed from its checkpoint (the ply-ply contact's friction
     memory, accumulated slip and friction work with the tools' state), the run ends where the

@@ -4,11 +4,11 @@ holder found on the tools' flat faces, a position-controlled one reporting its m
 the holder warning, and the meshed tools' candidate lists against the plain search.
 
 The forming comparisons are slow: the hemisphere (the punch 5 mm down on the coarsest mesh
-its die fillet allows) about a minute per run on one rank of the project's machine, the
-double dome (3 mm, its shipped 7.5 mm mesh) about 45 s built-in and 90 s with STEP tools.
-They are marked ``two_ranks`` (tests/conftest.py): the suite runs them once, under
-`mpirun -n 2`; the built-in runs are the session's (tests/conftest.py), which
-tests/test_forming.py checks too.
+its die fillet allows) and the double dome (3 mm, its shipped 7.5 mm mesh), 20-50 s a run on
+one rank. They are marked ``serial`` (tests/conftest.py): the suite runs them once, on one
+rank; the built-in runs are the session's (tests/conftest.py), which tests/test_forming.py
+checks too. test_a_position_controlled_step_holder_reports_the_force_it_measured (one step)
+runs in both passes: a forming run with STEP tools on 2 ranks.
 """
 
 import json
@@ -181,7 +181,7 @@ def both(cad, hemisphere_5mm, tmp_path_factory):
             "step": run(cad / "hemisphere_step.toml", folder / "step")}
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_step_tools_give_the_built_in_tools_answer(both):
     """The default hemisphere job, 5 mm, with its built-in tools and with the same tools from
     STEP files (meshed by gmsh, chord error <= 0.05 mm against the smoothing's 0.195 mm):
@@ -208,8 +208,8 @@ def test_step_tools_give_the_built_in_tools_answer(both):
     assert any("holder force 200 N (force-controlled)" in line for line in said)
 
 
-@pytest.mark.two_ranks
 def test_a_position_controlled_step_holder_reports_the_force_it_measured(cad, shared_tmp):
+    # both passes: a forming run with meshed STEP tools on 2 ranks
     """With control = "position" the holder stays at z = 0 where the die's top is: the blank
     between them is squeezed by the smoothed penalty of both (thousands of N, not the config's
     200 N), and the log and summary.json state the measured force, not process.holder_force."""
@@ -227,7 +227,7 @@ def test_a_position_controlled_step_holder_reports_the_force_it_measured(cad, sh
     assert any(f"{measured:.5g}" in line for line in said)
 
 
-@pytest.mark.two_ranks
+@pytest.mark.serial
 def test_step_tools_give_the_built_in_double_domes_answer(shared_tmp, comm, double_dome_short):
     """The shipped 0/90 double-dome job (h = 7.5 mm, with the blank's inertia), 3 mm in steps
     of 0.3-0.6 mm, with its exact tools (the session's run, tests/conftest.py) and with the same
