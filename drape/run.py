@@ -29,6 +29,7 @@ HELP = "run a forming job from a TOML config (serial or under mpirun)"
 
 
 def add_arguments(parser) -> None:
+    from drape.io.checkpoint import CONTROLS_TEXT
     parser.add_argument("config", metavar="CONFIG.toml",
                         help="the job file (TOML: material, blank, mesh, steps, histories, "
                              "boundaries; every key in docs/fe-solver.md), e.g. "
@@ -47,8 +48,7 @@ def add_arguments(parser) -> None:
     again = parser.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true",
                        help="continue from the checkpoint in the results folder (same config "
-                            "and --set values, but for steps.*, solver.* and "
-                            "process.holder_prediction; any number of ranks)")
+                            f"and --set values, but for {CONTROLS_TEXT}; any number of ranks)")
     again.add_argument("--overwrite", action="store_true",
                        help="start over in a results folder that already holds results")
 

@@ -7,8 +7,8 @@ so that the pinched flange carries the pressure F / A (A the blank's reference a
 holder's flat face: :func:`holder_region` for the built-in tools, :func:`pinch_region` for
 STEP tools). A converged step whose measured holder force is off F by more than
 :data:`HOLDER_TOLERANCE` is solved again with the holder moved
-(:func:`hold_force`, with a :class:`Bracket`), and after every
-converged step the height is corrected by the measured force (:class:`HolderControl`).
+(:func:`hold_force`, with a :class:`Bracket`), and after every converged step the height is
+corrected by the measured force (:class:`HolderControl`).
 """
 
 from __future__ import annotations

@@ -10,16 +10,14 @@ face and the holder's lower face are (``tools.*.gap`` = 0).
 
 * The tools and their contact with the blank: :mod:`drape.forming.tool_contact`.
 * The blank holder is a rigid tool too, force-controlled (:mod:`drape.forming.holder`): a
-  converged step whose measured holder force is off F by more than the tolerance is solved
-  again with the holder moved (:func:`~drape.forming.holder.hold_force`), and after every
-  converged step the
-  height is corrected by the measured force, as a press's cushion does. Unlike a prescribed
-  pressure, a rigid holder keeps the flange from wrinkling under it. A STEP holder is
-  force-controlled the same way (``tools.step.holder.control = "force"``, the default): the
-  flat face is found on the tools themselves; with ``control = "position"`` it stays where its
-  file puts it and its force is measured, not set. A converged step whose holder force is more
-  than :data:`~drape.forming.holder.HOLDER_WARNING` off process.holder_force is a warning in
-  the log.
+  converged step whose measured holder force is off F by more than the tolerance is solved again
+  with the holder moved (:func:`~drape.forming.holder.hold_force`), and after every converged
+  step the height is corrected by the measured force, as a press's cushion does. Unlike a
+  prescribed pressure, a rigid holder keeps the flange from wrinkling under it. A STEP holder is
+  force-controlled the same way (``tools.step.holder.control = "force"``, the default): the flat
+  face is found on the tools themselves; with ``control = "position"`` it stays where its file
+  puts it and its force is measured, not set. A converged step whose holder force is more than
+  :data:`~drape.forming.holder.HOLDER_WARNING` off process.holder_force is a warning in the log.
 """
 
 from __future__ import annotations

@@ -98,7 +98,7 @@ def write_reports(forming, folder: Path, records: list, seconds: float) -> dict:
                   f"{100 * HOLDER_WARNING:g} %" if forming.holder is not None
                   else "position-controlled")
         forming.say(f"drape run: holder force measured {min(measured):.5g} to "
-                 f"{max(measured):.5g} N over the converged steps ({target})")
+                    f"{max(measured):.5g} N over the converged steps ({target})")
     plies = stack_entries(forming, summary, locking)
     if forming.comm.rank == 0:
         summary.update(run_entries(forming, records, seconds, measured))

@@ -46,6 +46,9 @@ FREE_KEYS = ("title", "material", "output.folder", "output.checkpoint_every")
 #: steps are solved, not the problem: a run that stopped or failed to converge goes on from
 #: its checkpoint with smaller steps, more iterations or other solver settings (logged)
 CONTROL_KEYS = ("steps.", "solver.", "process.holder_prediction")
+#: CONTROL_KEYS as the messages name them: "steps.*, solver.* and process.holder_prediction"
+CONTROLS_TEXT = " and ".join([", ".join(k + "*" if k.endswith(".") else k
+                                        for k in CONTROL_KEYS[:-1]), CONTROL_KEYS[-1]])
 
 
 def signature(job, defaults: bool = False) -> dict[str, str]:
@@ -382,9 +385,8 @@ class Checkpoints:
             raise InputError("the config or material differs from the checkpoint's: "
                              + "; ".join(problem), source=str(self.path), key="--resume",
                              expected="the same config, --set values and material as the "
-                                      "interrupted run (only the steps.*, solver.* and "
-                                      "process.holder_prediction settings may change); or "
-                                      "--overwrite to start over")
+                                      f"interrupted run (only the {CONTROLS_TEXT} settings "
+                                      "may change); or --overwrite to start over")
         meta["changed_controls"] = changed
         return meta
 
