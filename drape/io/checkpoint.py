@@ -88,16 +88,16 @@ def is_control(key: str) -> bool:
     return any(key.startswith(c) if c.endswith(".") else key == c for c in CONTROL_KEYS)
 
 
-def differences(saved: dict, now: dict, defaults: dict | None = None) -> list[str]:
-    """The keys whose values differ, as "key (saved -> now)". A key the checkpoint lacks (a
-    setting newer than the drape that wrote it) matches where its value now is the setting's
-    default (``defaults``, :func:`signature` with ``defaults=True``): the default of a new
-    setting keeps the behaviour before it."""
+def differences(saved: dict, now: dict, defaults: dict | None = None) -> dict[str, str]:
+    """The keys whose values differ, each with "key (saved -> now)" for messages. A key the
+    checkpoint lacks (a setting newer than the drape that wrote it) matches where its value now
+    is the setting's default (``defaults``, :func:`signature` with ``defaults=True``): the
+    default of a new setting keeps the behaviour before it."""
     defaults = defaults or {}
     keys = sorted(set(saved) | set(now))
-    return [f"{k} ({saved.get(k, 'unset')} -> {now.get(k, 'unset')})" for k in keys
+    return {k: f"{k} ({saved.get(k, 'unset')} -> {now.get(k, 'unset')})" for k in keys
             if saved.get(k) != now.get(k)
-            and not (k not in saved and k in defaults and now.get(k) == defaults[k])]
+            and not (k not in saved and k in defaults and now.get(k) == defaults[k])}
 
 
 class Checkpoints:
@@ -380,16 +380,15 @@ class Checkpoints:
             raise InputError("the checkpoint is of another drape version", source=str(self.path),
                              value=meta.get("version"), expected=f"version {VERSION}")
         changed = differences(meta["signature"], self.signature, self.defaults)
-        problem = [item for item in changed if not is_control(item.split(" (")[0])]
+        problem = [text for key, text in changed.items() if not is_control(key)]
         if problem:
             raise InputError("the config or material differs from the checkpoint's: "
                              + "; ".join(problem), source=str(self.path), key="--resume",
                              expected="the same config, --set values and material as the "
                                       f"interrupted run (only the {CONTROLS_TEXT} settings "
                                       "may change); or --overwrite to start over")
-        meta["changed_controls"] = changed
+        meta["changed_controls"] = list(changed.values())
         return meta
-
 
 
 def _ply_rows(plies, owned_nodes) -> dict:
