@@ -888,7 +888,8 @@ def test_inertia_of_a_motion_quadratic_in_time_is_exact(steps):
     and move on so, k (u - u_anchor) is the inertial force rho_A a (in N/mm^2: 1e-9 rho_A a,
     rho_A in kg/m^2, a in mm/s^2) at every node; from rest (the step after the first) the
     second difference takes a previous step of the same duration at rest, (u - u_last) /
-    dtau^2. The first step has none."""
+    dtau^2, and Newton starts from the first step's motion carried on without its upward
+    part (the blank's lift onto the die's penalty). The first step has none."""
     from types import SimpleNamespace
 
     from drape.fe.membrane import MembraneProblem
@@ -932,6 +933,14 @@ def test_inertia_of_a_motion_quadratic_in_time_is_exact(steps):
     problem.t_previous, problem.u_previous.x.array[:] = 0.0, c
     Forming.predict(forming, t)
     assert problem.u_anchor.x.array == pytest.approx(u(t1))
+    # and Newton starts from the first step's motion carried on, but not its lift (+z):
+    # in-plane in full, vertically downward only
+    carried = (t - t1) / t1 * (u(t1) - c)
+    assert (carried[2::3] > 0).any() and (carried[2::3] < 0).any()
+    start = problem.u.x.array - u(t1)
+    assert start[0::3] == pytest.approx(carried[0::3])
+    assert start[1::3] == pytest.approx(carried[1::3])
+    assert start[2::3] == pytest.approx(np.minimum(carried[2::3], 0.0), abs=1e-12)
     assert problem.inertia_constant.value == pytest.approx(1e-9 * 1.3 / (tau(t) - tau(t1)) ** 2)
     # the first step: no inertia
     problem.t_committed, problem.t_previous = 0.0, None

@@ -257,8 +257,9 @@ class Forming(JobPart):
     def predict(self, t: float) -> None:
         """Start Newton from the last two converged steps extrapolated linearly to t, not from
         the last one: the punch has moved on, and the fabric in contact with it with it
-        (without this, a step needs 15-25 Newton iterations instead of a handful). The first
-        step is damped with :data:`SETTLING_DAMPING` unless the config sets a damping.
+        (without this, a step needs 15-25 Newton iterations instead of a handful); the second
+        step carries on the first one's downward motion only (below). The first step is damped
+        with :data:`SETTLING_DAMPING` unless the config sets a damping.
 
         With inertia (areal density rho_A > 0) the problem gets the inertial force rho_A u''
         (u'' the acceleration in time: the punch travel s becomes time through
@@ -283,11 +284,12 @@ class Forming(JobPart):
         if moving:
             u1, u0 = p.u_committed.x.array, p.u_previous.x.array
             increment = (t - t1) / (t1 - t0) * (u1 - u0)
-            if plies is not None and t0 == 0.0:
-                # a stack's first step also lifts each ply onto the smoothed penalties below
-                # it; carried on, that lift parts the plies, leaves Newton a singular first
-                # matrix and the run to round-off (different on 1 and 2 ranks): the step after
-                # it carries on the tools' downward motion only
+            if t0 == 0.0:
+                # the first step also lifts the blank (each ply of a stack) onto the smoothed
+                # penalty of the die (the ply) below it; carried on, that lift pushes the blank
+                # off the die as the punch comes down (on fine meshes Newton fails there and
+                # then crawls in small steps) and parts a stack's plies (a singular first
+                # matrix): the second step carries on the downward motion only
                 increment[2::3] = np.minimum(increment[2::3], 0.0)
             p.set_initial_guess(u1 + increment)
         if not p.inertial:
