@@ -21,11 +21,30 @@ EVENTS = ("MatLUFactorNum", "MatLUFactorSym", "MatCholeskyFactorNum", "MatSolve"
           "SNESFunctionEval", "SNESJacobianEval", "SNESSolve", "KSPSolve")
 
 
+def own_geometry(drape) -> None:
+    """Make ``drape.geometry`` the gmsh builders of the checkout whose drape runs. With
+    PYTHONPATH at another checkout (speed_10k.py's baseline) its drape is found first, but the
+    installed package maps ``drape.geometry`` to this checkout's geometry/, which need not match
+    that drape (an older one imports modules this one moved)."""
+    import importlib.util
+    from pathlib import Path
+    init = Path(drape.__file__).resolve().parent.parent / "geometry" / "__init__.py"
+    if not init.is_file() or "drape.geometry" in sys.modules:
+        return
+    spec = importlib.util.spec_from_file_location(
+        "drape.geometry", init, submodule_search_locations=[str(init.parent)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["drape.geometry"] = module
+    spec.loader.exec_module(module)
+    drape.geometry = module
+
+
 def main() -> int:
     from petsc4py import PETSc
     PETSc.Log.begin()
     out, argv = sys.argv[1], sys.argv[2:]
     import drape
+    own_geometry(drape)
     import drape.run
     from drape import cli
 
