@@ -329,10 +329,15 @@ def apply_overrides(data: dict, overrides: list[str] | None) -> dict:
     return data
 
 
+def override_key(text: str) -> str:
+    """The dotted key of a ``table.key=value`` override, its names stripped of spaces."""
+    return ".".join(n.strip() for n in text.partition("=")[0].split("."))
+
+
 def _name_override(error: InputError, overrides: list[str] | None) -> InputError:
     """The error, its file followed by the ``--set`` that gave the key its value, if one did."""
     for text in reversed(overrides or []):
-        key = ".".join(n.strip() for n in text.partition("=")[0].split("."))
+        key = override_key(text)
         if error.key and (error.key == key or error.key.startswith((key + ".", key + "["))):
             return InputError(error.problem, source=f"{error.source} with --set {text}",
                               key=error.key, value=error.value, expected=error.expected)

@@ -94,11 +94,13 @@ def resume_command(args, ranks: int, changed: list[str] = ()) -> str:
     """The command line that resumes the run of ``args``, with the overrides ``changed``
     ("key=value") in place of the run's own for the same keys."""
     import shlex
+
+    from drape.job import override_key
     words = ["drape", "run", args.config, "--resume"]
     if args.output:
         words += ["--output", args.output]
-    keys = {item.split("=", 1)[0].strip() for item in changed}
-    for item in [i for i in args.set if i.split("=", 1)[0].strip() not in keys] + list(changed):
+    replaced = {override_key(item) for item in changed}
+    for item in [i for i in args.set if override_key(i) not in replaced] + list(changed):
         words += ["--set", item]
     for item in args.petsc_option:
         words += ["--petsc-option", item]
