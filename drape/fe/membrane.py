@@ -24,15 +24,15 @@ mu K1 / 2, mu K2 / 2 are DG0 functions (per cell, from its ply) instead of numbe
 runs on each ply's points with that ply's parameters (drape/law/piecewise.py). Where the
 plies share them the forms and the law are a single ply's, value for value.
 
-S11 and S22 are written in UFL; tau and its consistent tangent d tau / d C12 come from the numpy
-law at the quadrature points. Every residual evaluation computes the yarn-frame C at the
-quadrature points (a compiled :class:`dolfinx.fem.Expression`), runs the law from the
-*committed* state (so a line search may call it any number of times) and writes tau and the
-tangent into quadrature-space functions. The Jacobian is ``ufl.derivative`` of the residual with
-tau frozen (yarn tension and the whole geometric stiffness) plus the shear tangent
-``dtau/dC12 * dE12(du) * 2 dE12(v)``, the regularisation and the point stiffnesses; with a
-``neutral_loading_band`` the shear tangent is stiffened where a point is only just plastic
-(:func:`neutral_loading_tangent`).
+S11 and S22 are written in UFL (:mod:`drape.fe.membrane_forms`); tau and its consistent tangent
+d tau / d C12 come from the compiled law at the quadrature points. Every residual evaluation
+computes the yarn-frame C at the quadrature points (a compiled
+:class:`dolfinx.fem.Expression`), runs the law from the *committed* state (so a line search may
+call it any number of times) and writes tau and the tangent into quadrature-space functions.
+The Jacobian is ``ufl.derivative`` of the residual with tau frozen (yarn tension and the whole
+geometric stiffness) plus the shear tangent ``dtau/dC12 * dE12(du) * 2 dE12(v)``, the
+regularisation and the point stiffnesses; with a ``neutral_loading_band`` the shear tangent is
+stiffened where a point is only just plastic (:func:`neutral_loading_tangent`).
 
 The law's state (gamma_p, the centres c_1..c_n, gamma_max, the branch's active surface,
 direction and Table-2 row, the committed yarn-frame C) lives in quadrature-space functions
@@ -52,6 +52,7 @@ from typing import Sequence
 import numpy as np
 
 from drape.fe.contributions import PointContribution, all_finite
+from drape.fe.membrane_forms import membrane_forms, regularisation_forms
 from drape.fe.newton_tangent import neutral_loading_tangent
 
 #: quadrature degree of the law's points, by cell type name
@@ -92,9 +93,15 @@ class MembraneProblem:
         self._point_law()
         self._spaces_and_state()
         u, v, du = self.u, ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
-        F, C11, C22, C12, internal, jacobian = self._membrane_forms(v, du)
-        residual, jacobian, regularisation_work = self._regularisation(internal, jacobian,
-                                                                       v, du, inertia)
+        kinematics, internal, jacobian, self.strip_reduced = membrane_forms(
+            self.mesh, blank_mesh, self.plies, u, self.tau, self.dtau, self.degree, v, du)
+        F = kinematics.F
+        terms = regularisation_forms(self.mesh, self.V, u, self.u_committed, internal, jacobian,
+                                     v, du, self.damping, inertia)
+        residual, jacobian, regularisation_work = terms.residual, terms.jacobian, terms.work
+        self.damping_constant, self.inertia_constant = terms.damping_constant, \
+            terms.inertia_constant
+        self.u_anchor = terms.u_anchor
         bending_energy = None
         if self.bending_rigidity > 0.0:
             from drape.fe.bending import hinge_energy
@@ -114,7 +121,7 @@ class MembraneProblem:
         self.regularisation_work_form = fem.form(regularisation_work, jit_params=jit)
         self.bending_energy_form = (fem.form(bending_energy, jit_params=jit)
                                     if bending_energy is not None else None)
-        self._point_expressions(F, C11, C22, C12, jit)
+        self._point_expressions(kinematics, jit)
 
         self.bcs = []
         self.response = None
@@ -198,89 +205,13 @@ class MembraneProblem:
         self.dtau.x.array[:] = self.laws[0].two_mu_ksh
         self.dtau.x.array[self.qdofs] = self._elastic_shear
 
-    def _membrane_forms(self, v, du):
-        """The kinematics in the yarn frame and the internal virtual work with its Jacobian
-        (module docstring); returns F, C11, C22, C12, the internal work and the Jacobian."""
-        import ufl
-        msh, u = self.mesh, self.u
-        G1, G2 = self.plies.yarn_frame()
-        half_mu_K1, half_mu_K2 = self.plies.half_yarn_moduli()
-        I32 = ufl.as_matrix([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
-        F = I32 + ufl.grad(u)
-        C = F.T * F
-        C11, C22, C12 = ufl.dot(G1, C * G1), ufl.dot(G2, C * G2), ufl.dot(G1, C * G2)
-
-        def dE12(w):
-            return ufl.dot(G1, ufl.sym(F.T * ufl.grad(w)) * G2)
-
-        P = ufl.outer(G1, G2) + ufl.outer(G2, G1)
-        S_yarn = (half_mu_K1 * (C11 - 1.0) * ufl.outer(G1, G1)
-                  + half_mu_K2 * (C22 - 1.0) * ufl.outer(G2, G2))
-        S_shear = 0.5 * self.tau * P
-        dx_law = ufl.dx(domain=msh, metadata={"quadrature_degree": self.degree})
-        virtual = ufl.sym(F.T * ufl.grad(v))
-        internal = self._internal_work(S_yarn, S_shear, virtual, dx_law)
-        jacobian = ufl.derivative(internal, u, du) + self.dtau * dE12(du) * 2.0 * dE12(v) * dx_law
-        self._G1 = G1
-        self._G2 = G2
-        return F, C11, C22, C12, internal, jacobian
-
-    def _internal_work(self, S_yarn, S_shear, virtual, dx_law):
-        """int S : sym(F^T grad v) dA; in the strip cells between a clipped yarn lattice and
-        the outline, which are not yarn-aligned, the yarn tension at the 2x2 points locks
-        (intra-ply shear locking, docs/blanks.md), so there it is integrated at the cell's
-        centre only (selective reduced integration), the shear at the law's points as
-        everywhere."""
-        import ufl
-        msh = self.mesh
-        strip = np.asarray(getattr(self.blank_mesh, "strip_cells", ()), dtype=np.int32)
-        self.strip_reduced = (bool(self.comm.allreduce(len(strip)))
-                              and msh.topology.cell_type.name == "quadrilateral")
-        if not self.strip_reduced:
-            return ufl.inner(S_yarn + S_shear, virtual) * dx_law
-        from dolfinx import mesh as dmesh
-        n_all = msh.topology.index_map(2).size_local + msh.topology.index_map(2).num_ghosts
-        marker = np.zeros(n_all, dtype=np.int32)
-        marker[strip] = 1
-        tags = dmesh.meshtags(msh, 2, np.arange(n_all, dtype=np.int32), marker)
-        dx_tag = ufl.Measure("dx", domain=msh, subdomain_data=tags,
-                             metadata={"quadrature_degree": self.degree})
-        dx_centre = ufl.Measure("dx", domain=msh, subdomain_data=tags,
-                                metadata={"quadrature_degree": 1})
-        return (ufl.inner(S_yarn, virtual) * dx_tag(0)
-                + ufl.inner(S_yarn, virtual) * dx_centre(1)
-                + ufl.inner(S_shear, virtual) * dx_law)
-
-    def _regularisation(self, internal, jacobian, v, du, inertia: bool):
-        """The residual and Jacobian with the out-of-plane damping k (u_z - u_z,last) and, with
-        ``inertia``, the inertial term k_m (u - u_anchor), u_anchor the motion carried on from
-        the last steps and k_m in N/mm^3 (a forming job sets both every step through
-        :meth:`set_damping` and :meth:`set_inertia`); also their work over the step."""
-        import ufl
-        from dolfinx import fem
-        from drape.fe.contributions import CONTRIBUTION_DEGREE
-        msh, u = self.mesh, self.u
-        dx_extra = ufl.dx(domain=msh, metadata={"quadrature_degree": CONTRIBUTION_DEGREE})
-        self.damping_constant = k = fem.Constant(msh, self.damping)
-        residual = internal + k * (u[2] - self.u_committed[2]) * v[2] * dx_extra
-        jacobian += k * du[2] * v[2] * dx_extra
-        work = 0.5 * k * (u[2] - self.u_committed[2]) ** 2 * dx_extra
-        self.inertia_constant = fem.Constant(msh, 0.0)
-        self.u_anchor = None
-        if inertia:
-            self.u_anchor = fem.Function(self.V, name="inertia_anchor")
-            k_m, lag = self.inertia_constant, u - self.u_anchor
-            residual += k_m * ufl.inner(lag, v) * dx_extra
-            jacobian += k_m * ufl.inner(du, v) * dx_extra
-            work += 0.5 * k_m * ufl.inner(lag, lag) * dx_extra
-        return residual, jacobian, work
-
-    def _point_expressions(self, F, C11, C22, C12, jit: dict) -> None:
+    def _point_expressions(self, kinematics, jit: dict) -> None:
         """Compiled values at the law's points: C in the yarn frame (the law's input), the
         deformed yarn directions and the reference coordinates (output)."""
         import ufl
         from dolfinx import fem
-        G1, G2 = self._G1, self._G2
+        F, C11, C22, C12 = kinematics.F, kinematics.C11, kinematics.C22, kinematics.C12
+        G1, G2 = kinematics.G1, kinematics.G2
         self._yarn_C = fem.Expression(ufl.as_vector([C11, C22, C12]), self.points, jit_params=jit)
         self._directions = fem.Expression(ufl.as_vector([(F * G1)[i] for i in range(3)]
                                                         + [(F * G2)[i] for i in range(3)]),
