@@ -5,16 +5,21 @@ partial ply (a patch, a drop-off) steps down past its edge onto the next ply bel
 plies' flat triangles (:class:`drape.forming.ply_surfaces.StackNodes`' numbering, any rank):
 :func:`laid_heights` gives each point's mid-surface height and :func:`bridged_ply` the ply
 past its neighbour that the ply-ply contact pairs it with where a partial ply between two
-plies leaves them touching.
+plies leaves them touching; :func:`interface_directions` the pairs of plies that the contact
+searches, each direction of each interface and those bridges.
 
 Plain numpy and scipy.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy.spatial import cKDTree
 
+from drape.forming.ply_pair import FrictionLaw
+from drape.forming.ply_surfaces import StackNodes
 from drape.forming.surfaces import closest_point_on_triangles
 
 #: ``inside_by``: a point within this fraction of its ply's element size of a ply's flat
@@ -157,3 +162,68 @@ def laid_heights(xy_nodes, triangles, triangle_ply, thicknesses, xy, plies):
     height = np.where(last < 0, 0.0,
                       height + 0.5 * (thicknesses[np.maximum(last, 0)] + thicknesses[plies]))
     return height, 1 + covered.sum(axis=1)
+
+
+# --- the interfaces' directions, for the ply-ply contact (drape.forming.ply_contact) -------------
+#: a bridge across a partial ply (:func:`bridges`) takes the nodes within this many of their
+#: ply's elements inside the partial ply's outline too: the partial ply may slide by that
+#: much over the forming before a node it uncovers misses the ply below it (bridges are
+#: found once, on the flat stack)
+BRIDGE_INSET = 1.0
+
+
+@dataclasses.dataclass
+class Direction:
+    """One direction of one interface: slave ply's nodes against master ply's triangles."""
+
+    interface: int
+    slave: int
+    master: int
+    sign: float               # +1: the master lies below the slave, -1: above
+    offset: float             # (t_slave + t_master) / 2, mm
+    law: FrictionLaw
+    #: (N,) which of the slave ply's nodes take part (None: all): across a partial ply, those
+    #: with no ply between them and the master ply (:func:`bridged_ply`)
+    slaves: object = None
+
+
+def interface_directions(nodes: StackNodes, thicknesses, laws) -> list[Direction]:
+    """Every direction of every interface of a stack (``laws``: one per interface, bottom
+    first): ply k's nodes against ply k + 1's triangles and ply k + 1's against ply k's, then
+    the :func:`bridges` across partial plies."""
+    out = []
+    for k, law in enumerate(laws):
+        offset = 0.5 * (thicknesses[k] + thicknesses[k + 1])
+        out.append(Direction(k, k, k + 1, -1.0, offset, law))
+        out.append(Direction(k, k + 1, k, +1.0, offset, law))
+    return out + bridges(nodes, thicknesses, laws)
+
+
+def bridges(nodes: StackNodes, thicknesses, laws) -> list[Direction]:
+    """The contact of plies that a partial ply between them leaves touching: ply k on ply
+    j < k - 1 where no ply lies between them (:func:`bridged_ply`), both
+    directions, with the law of the interface under ply k (its underside's); counted to that
+    interface. None in a stack of whole plies.
+
+    Its slaves are the nodes outside the partial ply's outline, the element past its edge
+    included, over which ply k steps down onto ply j (:func:`laid_heights`): there
+    ply k leaves the partial ply's contact (its edge ramp) and must find ply j's, else the two
+    plies over a free span (the die's opening) pass through each other, held by their bending
+    alone, and Newton's matrix is singular. They include the nodes over the partial ply's
+    last element inside its edge too (BRIDGE_INSET), so that a partial ply may slide by as
+    much before ply k can miss ply j; there the partial ply keeps them apart, a gap of its
+    thickness, which the penalty does not feel where it is at least the smoothing g0."""
+    n_plies = len(thicknesses)
+    xy = nodes.reference[:, :2]
+    args = (xy, nodes.triangles, nodes.triangle_ply, n_plies, xy, nodes.ply, BRIDGE_INSET)
+    under, over = bridged_ply(*args), bridged_ply(*args, above=True)
+    out = []
+    for k in range(2, n_plies):
+        for j in range(k - 1):
+            up = (nodes.ply == k) & (under == j)
+            down = (nodes.ply == j) & (over == k)
+            if up.any() or down.any():
+                offset = 0.5 * (thicknesses[j] + thicknesses[k])
+                out.append(Direction(k - 1, j, k, -1.0, offset, laws[k - 1], down))
+                out.append(Direction(k - 1, k, j, +1.0, offset, laws[k - 1], up))
+    return out

@@ -33,14 +33,14 @@ closest triangle is always among the candidates. Plain numpy on global node numb
 
 from __future__ import annotations
 
-import dataclasses
 from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from drape.forming.contact import SEPARATED, elastic_slip, normal_pressure, traction
-from drape.forming.ply_pair import FrictionLaw, barycentric, edge_ramp, law_partials, pair_geometry
+from drape.forming.layup import interface_directions
+from drape.forming.ply_pair import barycentric, edge_ramp, law_partials, pair_geometry
 from drape.forming.ply_surfaces import StackNodes, reference_order, triangle_outline
 from drape.forming.surfaces import closest_point_on_triangles
 
@@ -57,32 +57,12 @@ EDGE_RAMP = 0.1
 PAIRING_HYSTERESIS = 1e-3
 #: default search margin (mm): how far nodes may move between searches
 DEFAULT_MARGIN = 0.5
-#: a bridge across a partial ply (:func:`_bridges`) takes the nodes within this many of their
-#: ply's elements inside the partial ply's outline too: the partial ply may slide by that
-#: much over the forming before a node it uncovers misses the ply below it (bridges are
-#: found once, on the flat stack)
-BRIDGE_INSET = 1.0
 #: master triangles whose distance to a slave node is within this of the closest one's (mm)
 #: are a tie, decided by the triangles' reference centroids, not by round-off: a slave over a
 #: master vertex (every node of two plies meshed alike) is as close to all the triangles
 #: around it, whose normals differ once the ply bends, so the last bits of u (MUMPS' order
 #: of summation, the ranks) would otherwise pick the normal and the force
 TIE_TOLERANCE = 1e-6
-
-
-@dataclasses.dataclass
-class Direction:
-    """One direction of one interface: slave ply's nodes against master ply's triangles."""
-
-    interface: int
-    slave: int
-    master: int
-    sign: float               # +1: the master lies below the slave, -1: above
-    offset: float             # (t_slave + t_master) / 2, mm
-    law: FrictionLaw
-    #: (N,) which of the slave ply's nodes take part (None: all): across a partial ply, those
-    #: with no ply between them and the master ply (:func:`drape.forming.layup.bridged_ply`)
-    slaves: object = None
 
 
 class PairForces(NamedTuple):
@@ -93,37 +73,6 @@ class PairForces(NamedTuple):
     nodes: np.ndarray
     force: np.ndarray
     jacobian: np.ndarray
-
-
-def _bridges(nodes: StackNodes, thicknesses, laws) -> list[Direction]:
-    """The contact of plies that a partial ply between them leaves touching: ply k on ply
-    j < k - 1 where no ply lies between them (:func:`drape.forming.layup.bridged_ply`), both
-    directions, with the law of the interface under ply k (its underside's); counted to that
-    interface. None in a stack of whole plies.
-
-    Its slaves are the nodes outside the partial ply's outline, the element past its edge
-    included, over which ply k steps down onto ply j (drape.forming.layup.laid_heights): there
-    ply k leaves the partial ply's contact (its edge ramp) and must find ply j's, else the two
-    plies over a free span (the die's opening) pass through each other, held by their bending
-    alone, and Newton's matrix is singular. They include the nodes over the partial ply's
-    last element inside its edge too (BRIDGE_INSET), so that a partial ply may slide by as
-    much before ply k can miss ply j; there the partial ply keeps them apart, a gap of its
-    thickness, which the penalty does not feel where it is at least the smoothing g0."""
-    from drape.forming.layup import bridged_ply
-    n_plies = len(thicknesses)
-    xy = nodes.reference[:, :2]
-    args = (xy, nodes.triangles, nodes.triangle_ply, n_plies, xy, nodes.ply, BRIDGE_INSET)
-    under, over = bridged_ply(*args), bridged_ply(*args, above=True)
-    out = []
-    for k in range(2, n_plies):
-        for j in range(k - 1):
-            up = (nodes.ply == k) & (under == j)
-            down = (nodes.ply == j) & (over == k)
-            if up.any() or down.any():
-                offset = 0.5 * (thicknesses[j] + thicknesses[k])
-                out.append(Direction(k - 1, j, k, -1.0, offset, laws[k - 1], down))
-                out.append(Direction(k - 1, k, j, +1.0, offset, laws[k - 1], up))
-    return out
 
 
 class PlyContact:
@@ -138,12 +87,7 @@ class PlyContact:
         self.regularisation, self.margin = float(regularisation), float(margin)
         n = len(nodes.reference)
         self.owned = np.ones(n, dtype=bool) if owned is None else np.asarray(owned, dtype=bool)
-        self.directions = []
-        for k, law in enumerate(laws):
-            offset = 0.5 * (thicknesses[k] + thicknesses[k + 1])
-            self.directions.append(Direction(k, k, k + 1, -1.0, offset, law))
-            self.directions.append(Direction(k, k + 1, k, +1.0, offset, law))
-        self.directions += _bridges(nodes, thicknesses, laws)
+        self.directions = interface_directions(nodes, thicknesses, laws)
         self.step_duration = None
         #: per direction, the elastic slip (N, 3) each slave node held at the last converged
         #: step (friction's memory, as the tools' :class:`~drape.forming.press.ToolContact`)
