@@ -21,7 +21,8 @@ results with `drape view`.
 
 from __future__ import annotations
 
-from drape.step_loop import ALSO_REMOVED, RESULT_FILES, Hooks, RunParts, RunSummary, StepLoop
+from drape.io.folder import ALSO_REMOVED, RESULT_FILES
+from drape.step_loop import Hooks, RunParts, RunSummary, StepLoop
 
 __all__ = ["run_job", "job_parts", "RunParts", "RunSummary"]
 

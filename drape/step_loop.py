@@ -23,11 +23,6 @@ from drape.step_record import StepRecord, WorkLedger
 #: that raised alone aborts the run (StepLoop._abort_if_alone)
 ALONE_WAIT = 20.0
 
-#: what a run writes in its folder (drape.io.folder.claim refuses to overwrite them silently)
-RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
-#: removed with them by --overwrite
-ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "checkpoint.h5",
-                "frame_force.csv", "frame_force.png", "bias_extension.csv", "bias_extension.png")
 FREE_MESH_WARNING = (
     "drape run: warning: mesh.pattern = \"free\": element edges do not follow the yarns; "
     "with stiff yarns such meshes lock in tension (too stiff, yarns stretched: watch "
@@ -299,6 +294,7 @@ class StepLoop:
         """Solve the load steps from the start (or the checkpoint) to t = 1; see run_job."""
         from drape.errors import InputError, RunFailed, WriteFailed
         from drape.fe.solver import run_load_steps
+        from drape.io.disk import write_failed
         if self.hooks.on_start is not None:
             self.hooks.on_start(RunParts(self.job, self.problem, self.solver, self.motion,
                                          self.parts))
@@ -401,36 +397,3 @@ class StepLoop:
             self.disk.write(part.files, lambda part=part: part.finish(
                 self.folder, self.records, time.perf_counter() - self.started),
                 root_only=part.finish_on_root)
-
-
-def write_failed(failure, writer, checkpoints, records, folder):
-    """After a write failure (drape.io.disk): fields.xdmf back to its last complete step; a
-    checkpoint of that step when the failure came before the step changed anything (a step
-    that would not fit) and there is room for one (else the last good one is kept). Returns
-    the WriteFailed to raise: the failure, what is kept, and whether a resume can follow."""
-    from drape.errors import WriteFailed
-    if not failure.fields_intact:
-        writer.rewind_fields()
-    room = None
-    if not getattr(failure, "committed", False):
-        try:
-            checkpoints.save_last(check_space=True)
-        except WriteFailed:
-            from drape.io.disk import size
-            room = size(checkpoints.disk.checkpoint_bytes())
-    kept = (f"; results up to step {records[-1].step} (t = {records[-1].t:.6g}) are kept in "
-            f"{folder}")
-    saved = checkpoints.saved_step
-    if saved is not None:
-        kept += f", with the checkpoint of step {saved}"
-        if room is not None:
-            kept += f" (no room for a newer one: about {room})"
-    elif room is not None:
-        kept += (f", without a checkpoint (no room for one either: about {room}): --overwrite "
-                 "starts over once there is space")
-    else:
-        kept += (", without a checkpoint (output.checkpoint_every = 0 or none written yet): "
-                 "--overwrite starts over")
-    error = WriteFailed(f"{failure}{kept}", fields_intact=failure.fields_intact)
-    error.resumable = saved is not None
-    return error

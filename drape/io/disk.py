@@ -238,3 +238,34 @@ def _hdf5():
             except (OSError, AttributeError):
                 pass
     return quiet_hdf5._library or None
+
+
+def write_failed(failure, writer, checkpoints, records, folder):
+    """After a write failure (:meth:`Disk.write`): fields.xdmf back to its last complete step; a
+    checkpoint of that step when the failure came before the step changed anything (a step
+    that would not fit) and there is room for one (else the last good one is kept). Returns
+    the WriteFailed to raise: the failure, what is kept, and whether a resume can follow."""
+    if not failure.fields_intact:
+        writer.rewind_fields()
+    room = None
+    if not getattr(failure, "committed", False):
+        try:
+            checkpoints.save_last(check_space=True)
+        except WriteFailed:
+            room = size(checkpoints.disk.checkpoint_bytes())
+    kept = (f"; results up to step {records[-1].step} (t = {records[-1].t:.6g}) are kept in "
+            f"{folder}")
+    saved = checkpoints.saved_step
+    if saved is not None:
+        kept += f", with the checkpoint of step {saved}"
+        if room is not None:
+            kept += f" (no room for a newer one: about {room})"
+    elif room is not None:
+        kept += (f", without a checkpoint (no room for one either: about {room}): --overwrite "
+                 "starts over once there is space")
+    else:
+        kept += (", without a checkpoint (output.checkpoint_every = 0 or none written yet): "
+                 "--overwrite starts over")
+    error = WriteFailed(f"{failure}{kept}", fields_intact=failure.fields_intact)
+    error.resumable = saved is not None
+    return error

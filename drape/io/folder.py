@@ -13,6 +13,12 @@ from pathlib import Path
 
 from drape.errors import InputError
 
+#: what `drape run` writes in its folder (claim refuses to overwrite them silently)
+RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
+#: removed with them by --overwrite
+ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "checkpoint.h5",
+                "frame_force.csv", "frame_force.png", "bias_extension.csv", "bias_extension.png")
+
 
 def claim(folder, results, *, comm=None, overwrite: bool = False, resume: bool = False,
           also_remove=(), can_resume: bool = False) -> None:
