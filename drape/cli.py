@@ -13,7 +13,7 @@ import os
 import sys
 
 from drape import __version__
-from drape.errors import EXIT_BAD_INPUT, EXIT_RUN_FAILED, InputError, Interrupted, RunFailed
+from drape.errors import EXIT_BAD_INPUT, EXIT_RUN_FAILED, InputError, RunFailed, one_line
 
 #: subcommand -> module providing ``add_arguments(parser)``, ``main(args)`` and ``HELP``.
 #: Modules are imported only for the subcommand that runs (dolfinx takes seconds to import).
@@ -69,13 +69,12 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as error:
         if os.environ.get("DRAPE_DEBUG"):
             raise
-        _report(f"drape {args.command}: error: {error.message}")
+        _report(one_line(args.command, error))
         return EXIT_BAD_INPUT
     except RunFailed as error:
         if os.environ.get("DRAPE_DEBUG"):
             raise
-        stopped = isinstance(error, Interrupted)
-        _report(f"drape {args.command}: {'stopped' if stopped else 'run failed'}: {error}")
+        _report(one_line(args.command, error))
         return EXIT_RUN_FAILED
 
 

@@ -17,7 +17,6 @@ EXIT_RUN_FAILED = 1
 EXIT_BAD_INPUT = 2
 
 
-
 class _Unset:
     """'no value' (survives pickling: errors are broadcast under MPI)."""
 
@@ -93,3 +92,12 @@ class WriteFailed(RunFailed):
         self.fields_intact = fields_intact
         self.committed = False      # the failed step was committed in memory (no checkpoint)
         self.resumable = False      # a checkpoint exists: the message gives the resume command
+
+
+def one_line(command: str, error: Exception) -> str:
+    """The line a command reports a failure with (stderr, and the run's log): "drape COMMAND:
+    error: ..." for bad input, "stopped: ..." for a stopped run, "run failed: ..." otherwise."""
+    if isinstance(error, InputError):
+        return f"drape {command}: error: {error.message}"
+    kind = "stopped" if isinstance(error, Interrupted) else "run failed"
+    return f"drape {command}: {kind}: {error}"

@@ -57,47 +57,85 @@ def add_arguments(parser) -> None:
 def main(args) -> int:
     from mpi4py import MPI
 
-    from drape.errors import Interrupted, RunFailed, WriteFailed
-    from drape.job import load_job
+    from drape import __version__
+
+    from drape.errors import InputError, RunFailed, one_line
     from drape.fe.solver import parse_option
+    from drape.io.run_log import RunLog
+    from drape.job import load_job
 
     options = dict(parse_option(text) for text in args.petsc_option)
     job = load_job(args.config, overrides=args.set)
     comm = MPI.COMM_WORLD
     progress = step_progress(job, enabled=comm.rank == 0 and not args.quiet)
+    # the same lines, --quiet or not, into the results folder's run.log (drape.io.run_log)
+    run_log = RunLog(job.results_folder(args.output), append=args.resume,
+                     enabled=comm.rank == 0)
+    logged = step_progress(job, enabled=comm.rank == 0, stream=run_log)
+    header = f"{command_line(args, comm.size)} (drape {__version__})"
+
+    def log(text):
+        progress.message(text)
+        logged.message(text)
+
+    def on_step(record, problem=None):
+        progress.on_step(record, problem)
+        logged.on_step(record, problem)
+
     try:
-        summary = run_job(job, comm, output=args.output, petsc_options=options,
-                          log=progress.message if progress.enabled else None,
-                          on_step=progress.on_step, resume=args.resume, overwrite=args.overwrite)
-    except Interrupted as stopped:
-        raise Interrupted(f"{stopped}; resume with: {resume_command(args, comm.size)}") from None
-    except WriteFailed as failed:
-        if not failed.resumable:
-            raise
-        raise WriteFailed(f"{failed}; resume (once there is space) with: "
-                          f"{resume_command(args, comm.size)}") from None
-    except RunFailed as failed:         # Newton did not converge even at steps.minimum
-        if not failed.resumable:
-            raise
-        smaller = f"steps.minimum={job.config.steps.minimum / 10:g}"
-        raise RunFailed(f"{failed}; to go on from the checkpoint with other step or solver "
-                        f"settings: {resume_command(args, comm.size, [smaller])} (or other "
-                        "steps.* and solver.* values)") from None
+        summary = run_job(job, comm, output=args.output, petsc_options=options, log=log,
+                          on_step=on_step, on_start=lambda _parts: run_log.open(header),
+                          resume=args.resume, overwrite=args.overwrite)
+    except RunFailed as failed:
+        error = what_next(failed, args, job, comm.size)
+        run_log.close(one_line("run", error))
+        raise error from None
+    except InputError as error:
+        run_log.close(one_line("run", error))
+        raise
     finally:
         progress.close()
+    done = (f"drape run: {summary.steps} steps to t = {summary.t:g} in {summary.seconds:.1f} s; "
+            f"results in {summary.folder}")
+    run_log.close(done)
     if comm.rank == 0 and not args.quiet:
-        print(f"drape run: {summary.steps} steps to t = {summary.t:g} in {summary.seconds:.1f} s; "
-              f"results in {summary.folder}")
+        print(done)
     return 0
+
+
+def what_next(failed, args, job, ranks: int):
+    """The failure with the command that goes on from its checkpoint, where there is one: the
+    same run resumed after a stop or a write failure, smaller steps after Newton failed."""
+    from drape.errors import Interrupted, RunFailed, WriteFailed
+    if isinstance(failed, Interrupted):
+        return Interrupted(f"{failed}; resume with: {resume_command(args, ranks)}")
+    if not failed.resumable:
+        return failed
+    if isinstance(failed, WriteFailed):
+        return WriteFailed(f"{failed}; resume (once there is space) with: "
+                           f"{resume_command(args, ranks)}")
+    smaller = f"steps.minimum={job.config.steps.minimum / 10:g}"
+    return RunFailed(f"{failed}; to go on from the checkpoint with other step or solver "
+                     f"settings: {resume_command(args, ranks, [smaller])} (or other steps.* and "
+                     "solver.* values)")
 
 
 def resume_command(args, ranks: int, changed: list[str] = ()) -> str:
     """The command line that resumes the run of ``args``, with the overrides ``changed``
     ("key=value") in place of the run's own for the same keys."""
+    return command_line(args, ranks, changed, again="--resume")
+
+
+def command_line(args, ranks: int, changed: list[str] = (), again: str | None = None) -> str:
+    """The command line of the run of ``args`` on ``ranks`` ranks (``mpirun -n N`` before it
+    when N > 1), with the overrides ``changed`` ("key=value") in place of the run's own for the
+    same keys; ``again``: "--resume" or "--overwrite" in place of the run's own, if any."""
     import shlex
 
     from drape.job import override_key
-    words = ["drape", "run", args.config, "--resume"]
+    if again is None:
+        again = "--resume" if args.resume else "--overwrite" if args.overwrite else None
+    words = ["drape", "run", args.config] + ([again] if again else [])
     if args.output:
         words += ["--output", args.output]
     replaced = {override_key(item) for item in changed}
@@ -105,7 +143,7 @@ def resume_command(args, ranks: int, changed: list[str] = ()) -> str:
         words += ["--set", item]
     for item in args.petsc_option:
         words += ["--petsc-option", item]
-    text = shlex.join(words)
+    text = shlex.join(map(str, words))
     return f"mpirun -n {ranks} {text}" if ranks > 1 else text
 
 

@@ -115,3 +115,59 @@ def test_quiet_writes_nothing():
 def test_durations():
     assert [_duration(s) for s in (0.4, 59, 61, 3599, 3600 * 2 + 65, float("inf"))] == \
         ["0s", "59s", "1m01s", "59m59s", "2h01m", "?"]
+
+
+def test_run_log_keeps_lines_until_open_then_writes_each_at_once(tmp_path):
+    """drape.io.run_log.RunLog: lines before open() are kept and follow the dated header; after
+    it each write is in the file at once (a kill loses nothing written); close() adds the last
+    line; append=True (a resume) adds to the file; a disabled log (ranks > 0) writes nothing;
+    a log that cannot be opened is given up without an error."""
+    import re
+
+    from drape.io.progress import Progress
+    from drape.io.run_log import LOG_FILE, RunLog
+    log = RunLog(tmp_path, append=False)
+    progress = Progress(1.0, stream=log)
+    assert not progress.interactive                 # plain lines, never a redrawn bar
+    progress.message("drape run: before the folder is claimed")
+    assert not (tmp_path / LOG_FILE).exists()
+    log.open("drape run job.toml")
+    progress.step(1, 0.5, 3, 0.5)
+    lines = (tmp_path / LOG_FILE).read_text().splitlines()   # before close: already there
+    assert re.fullmatch(r"# \d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC: drape run job\.toml", lines[0])
+    assert lines[1] == "drape run: before the folder is claimed"
+    assert lines[2].startswith("step 1: load 0.5/1 (+0.5), 3 Newton iterations")
+    log.close("drape run: stopped: SIGTERM received")
+    again = RunLog(tmp_path, append=True)
+    again.open("drape run job.toml --resume")
+    again.close("drape run: 2 steps to t = 1")
+    lines = (tmp_path / LOG_FILE).read_text().splitlines()
+    assert len(lines) == 6 and lines[3] == "drape run: stopped: SIGTERM received"
+    assert lines[4].endswith("drape run job.toml --resume")
+    assert lines[5] == "drape run: 2 steps to t = 1"
+    fresh = RunLog(tmp_path, append=False)
+    fresh.open("new")
+    fresh.close()
+    assert len((tmp_path / LOG_FILE).read_text().splitlines()) == 1
+    quiet = RunLog(tmp_path / "other", append=False, enabled=False)
+    quiet.open("x")
+    quiet.close("y")
+    assert not (tmp_path / "other").exists()
+    broken = RunLog(tmp_path / "missing" / "folder", append=False)
+    broken.write("kept\n")
+    broken.open("cannot be written")                # no such folder: given up, no error
+    broken.write("more\n")
+    broken.close("last")
+    assert not broken.enabled and not (tmp_path / "missing").exists()
+
+
+def test_failures_are_reported_in_one_line_with_their_kind():
+    """drape.errors.one_line: the line on stderr and at the end of run.log."""
+    from drape.errors import InputError, Interrupted, RunFailed, WriteFailed, one_line
+    assert one_line("run", InputError("bad", key="mesh.size", value=-1, expected="> 0")) \
+        .startswith("drape run: error: ")
+    assert one_line("run", Interrupted("SIGTERM received")) == \
+        "drape run: stopped: SIGTERM received"
+    assert one_line("run", RunFailed("step 3: Newton")) == "drape run: run failed: step 3: Newton"
+    assert one_line("calibrate", WriteFailed("no space")) == \
+        "drape calibrate: run failed: no space"

@@ -16,7 +16,7 @@ from drape.errors import InputError
 #: what `drape run` writes in its folder (claim refuses to overwrite them silently)
 RESULT_FILES = ("steps.csv", "fields.xdmf", "result.npz", "checkpoint.npz")
 #: removed with them by --overwrite
-ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "checkpoint.h5",
+ALSO_REMOVED = ("fields.h5", "fields-*.h5", "checkpoint.xdmf", "checkpoint.h5", "run.log",
                 "frame_force.csv", "frame_force.png", "bias_extension.csv", "bias_extension.png")
 
 
