@@ -189,12 +189,17 @@ def test_a_stack_with_no_room_between_punch_and_die_is_a_warning(comm, config, w
     (punch, three interfaces, die) each push from g0 = 0.375 mm (h = 7.5 mm): 2.775 mm, more
     than the double dome's 2 mm clearance, which the run says at its start (its last 2 mm
     squeeze the stack: docs/plies-forming.md). The two-ply hemisphere (0.3 mm + 3 x 0.195 mm
-    against 5 mm) and one ply (no stack) are not warned of."""
-    from drape.forming.checks import squeezed_thickness, tool_clearance
+    against 5 mm) and one ply (no stack) are not warned of. The warning names the largest
+    contact smoothing that fits: g0 = (2 - 0.9) / 5 = 0.22 mm, where the squeezed thickness is
+    the clearance; none where the plies' mid-surfaces alone exceed it."""
+    from drape.forming.checks import fitting_smoothing, squeezed_thickness, tool_clearance
     from drape.forming.press import Forming
     from drape.job import load_job
     assert squeezed_thickness([0.3] * 4, 0.375) == pytest.approx(1.05 - 0.15 + 5 * 0.375)
     assert squeezed_thickness([0.2, 0.4], 0.1) == pytest.approx(0.3 + 3 * 0.1)
+    assert fitting_smoothing([0.3] * 4, 2.0) == pytest.approx(0.22)
+    assert squeezed_thickness([0.3] * 4, fitting_smoothing([0.3] * 4, 2.0)) == pytest.approx(2.0)
+    assert fitting_smoothing([0.3] * 4, 0.89) is None and fitting_smoothing([0.3] * 4, 0.5) is None
     job = load_job(CONFIGS / config)
     said = []
     forming = Forming(job, comm, log=said.append)
@@ -206,6 +211,8 @@ def test_a_stack_with_no_room_between_punch_and_die_is_a_warning(comm, config, w
                 "apart, and 5 contacts each pushing from 0.375 mm), the tools leave 2 mm"
                 in warning[0])
         assert "tools.double_dome.clearance" in warning[0]
+        assert warning[0].endswith("and so does a contact.smoothing (g0, now 0.375 mm) of at "
+                                   "most 0.22 mm")
 
 
 def test_holder_control_of_a_stack_closes_every_gap_in_series():

@@ -64,6 +64,15 @@ def squeezed_thickness(thicknesses, smoothing: float) -> float:
     return sum(t) - 0.5 * (t[0] + t[-1]) + (len(t) + 1) * smoothing
 
 
+def fitting_smoothing(thicknesses, clearance: float) -> float | None:
+    """The largest contact smoothing g0 (mm) with which a stack of plies (``thicknesses``, mm)
+    fits a punch-to-die distance ``clearance`` (mm) unsqueezed (:func:`squeezed_thickness`
+    equal to it); None where even g0 = 0 does not fit."""
+    t = list(thicknesses)
+    room = clearance - squeezed_thickness(t, 0.0)
+    return room / (len(t) + 1) if room > 0.0 else None
+
+
 def smallest_wrapped_radius(config) -> float | None:
     """The smallest tool radius the fabric wraps around (mm): die entry and punch edge fillets."""
     tools, dims = tool_set(config)

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from drape.fe.job_part import JobPart
-from drape.forming.checks import (holder_mode, squeezed_thickness, stroke_of, tool_clearance,
-                                  tool_set)
+from drape.forming.checks import (fitting_smoothing, holder_mode, squeezed_thickness, stroke_of,
+                                  tool_clearance, tool_set)
 from drape.forming.holder import (HOLDER_WARNING, HolderControl, hold_force, holder_region,
                                   pinch_region)
 from drape.forming.tool_contact import ToolContact, tool_surfaces
@@ -150,7 +150,16 @@ class Forming(JobPart):
                      f"{len(plies) + 1} contacts each pushing from {self.smoothing:.3g} mm), "
                      f"the tools leave {clearance:g} mm: near full stroke the punch squeezes "
                      f"it, and the punch force and the shear there are the contact penalty's; "
-                     f"a wider tools.{self.kind}.clearance (or die opening) gives it room")
+                     f"a wider tools.{self.kind}.clearance (or die opening) gives it room"
+                     f"{self._smoothing_that_fits(plies, clearance)}")
+
+    def _smoothing_that_fits(self, plies, clearance: float) -> str:
+        """The warning's second remedy: the contacts' smoothing g0 that fits, if any."""
+        fits = fitting_smoothing([ply.thickness for ply in plies], clearance)
+        if fits is None:
+            return ""
+        return (f", and so does a contact.smoothing (g0, now {self.smoothing:.3g} mm) of at most "
+                f"{int(fits * 1000) / 1000:g} mm")
 
     def _friction_text(self) -> str:
         """μ for the log: one number, or one per tool where they differ."""
