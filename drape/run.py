@@ -58,7 +58,6 @@ def main(args) -> int:
     from mpi4py import MPI
 
     from drape import __version__
-
     from drape.errors import InputError, RunFailed, one_line
     from drape.fe.solver import parse_option
     from drape.io.run_log import RunLog

@@ -3,11 +3,11 @@ start, warnings, cutbacks, one line per converged step) and its last line (finis
 with the command that resumes it; failed, with what to change), each line written and flushed
 as it comes.
 
-Why a file as well as the terminal: a batch system that stops a job at its time limit sends
-SIGTERM to mpirun and to the ranks at once; mpirun dies first, and the ranks' last lines
-(the one that says the checkpoint is written and how to resume) have nowhere to go. Rank 0
-writes them here before it prints them. A resumed run appends to the log (after a header line
-with its command); ``--overwrite`` starts a new one.
+Why a file as well as the terminal: a batch system that stops a job at its time limit may send
+SIGTERM to mpirun and to the ranks at once; mpirun can then be gone before the ranks' last
+lines (the one that says the checkpoint is written and how to resume) reach it. Rank 0 writes
+them here before it prints them. A resumed run appends to the log (after a header line with its
+command); ``--overwrite`` starts a new one.
 
 Lines are kept in memory until :meth:`RunLog.open`, which ``drape run`` calls once the run has
 claimed its folder (a folder that holds another run's results is refused before its log is
