@@ -378,13 +378,13 @@ class StepLoop:
         if self.config.output.snapshot != "none":
             self.writer.write_snapshot(records[-1].t)
         saved = self.checkpoints.save_last()
-        if isinstance(failure, Interrupted) and saved:
-            # said before the results files are finished: mpirun, signalled too, may kill the
-            # ranks before the last line (drape.io.run_log)
-            self.say(f"drape run: {failure} received: the checkpoint of step {records[-1].step} "
-                     f"is written; finishing the results files (the same command with "
-                     f"--resume goes on)")
         if isinstance(failure, Interrupted):
+            # said before the results files are finished: mpirun, signalled too, may kill
+            # the ranks before the last line (drape.io.run_log)
+            if saved:
+                self.say(f"drape run: {failure} received: the checkpoint of step "
+                         f"{records[-1].step} is written; finishing the results files (the "
+                         f"same command with --resume goes on)")
             return Interrupted(f"{failure} received; stopped after step {records[-1].step} at "
                                f"t = {records[-1].t:.6g}: results"
                                f"{' and checkpoint' if saved else ''} up to it are in {folder}")

@@ -141,25 +141,21 @@ class Forming(JobPart):
         clearance = tool_clearance(self.config)
         if self.stack is None or clearance is None:
             return
-        plies = self.stack.plies
-        needed = squeezed_thickness([ply.thickness for ply in plies], self.smoothing)
-        if needed > clearance:
-            self.say(f"drape run: warning: where its {len(plies)} plies overlap the stack needs "
-                     f"{needed:.3g} mm between punch and die (its outer mid-surfaces "
-                     f"{needed - (len(plies) + 1) * self.smoothing:.3g} mm apart, and "
-                     f"{len(plies) + 1} contacts each pushing from {self.smoothing:.3g} mm), "
-                     f"the tools leave {clearance:g} mm: near full stroke the punch squeezes "
-                     f"it, and the punch force and the shear there are the contact penalty's; "
-                     f"a wider tools.{self.kind}.clearance (or die opening) gives it room"
-                     f"{self._smoothing_that_fits(plies, clearance)}")
-
-    def _smoothing_that_fits(self, plies, clearance: float) -> str:
-        """The warning's second remedy: the contacts' smoothing g0 that fits, if any."""
-        fits = fitting_smoothing([ply.thickness for ply in plies], clearance)
-        if fits is None:
-            return ""
-        return (f", and so does a contact.smoothing (g0, now {self.smoothing:.3g} mm) of at most "
-                f"{int(fits * 1000) / 1000:g} mm")
+        thicknesses = [ply.thickness for ply in self.stack.plies]
+        needed = squeezed_thickness(thicknesses, self.smoothing)
+        if needed <= clearance:
+            return
+        contacts = len(thicknesses) + 1
+        fits = fitting_smoothing(thicknesses, clearance)
+        smaller = ("" if fits is None else f", and so does a contact.smoothing (g0, now "
+                   f"{self.smoothing:.3g} mm) of at most {int(fits * 1000) / 1000:g} mm")
+        self.say(f"drape run: warning: where its {len(thicknesses)} plies overlap the stack needs "
+                 f"{needed:.3g} mm between punch and die (its outer mid-surfaces "
+                 f"{squeezed_thickness(thicknesses, 0.0):.3g} mm apart, and {contacts} contacts "
+                 f"each pushing from {self.smoothing:.3g} mm), the tools leave {clearance:g} mm: "
+                 f"near full stroke the punch squeezes it, and the punch force and the shear "
+                 f"there are the contact penalty's; a wider tools.{self.kind}.clearance (or die "
+                 f"opening) gives it room{smaller}")
 
     def _friction_text(self) -> str:
         """μ for the log: one number, or one per tool where they differ."""
