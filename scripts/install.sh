@@ -13,7 +13,7 @@
 # Environment: DRAPE_VENV (default: <repo>/.venv), DRAPE_EDITABLE=0 for a plain install,
 # DRAPE_LINT=0 to leave the linter out (an image that only runs jobs),
 # DRAPE_APT_ONLY=1 to stop after the Debian packages (the Dockerfile's first, cached layer),
-# DRAPE_WARM_UP=0 to leave the law's kernel uncompiled (the Dockerfile compiles it in a later
+# DRAPE_WARM_UP=0 to leave the compiled kernels uncompiled (the Dockerfile compiles it in a later
 # layer, where numba's cache stays valid),
 # DRAPE_PARAVIEW=1 to add Debian's ParaView 5.11 and Xvfb for `drape view` (138 packages, about 800 MB
 # more, so not by default; tests/test_paraview.py installs them itself when missing).
@@ -25,7 +25,7 @@ venv=${DRAPE_VENV:-$repo/.venv}
 apt_packages=(
   python3-dolfinx python3-petsc4py python3-mpi4py python3-gmsh
   python3-numpy python3-scipy python3-matplotlib python3-h5py
-  python3-numba   # the law's compiled kernel (drape/law/kernel.py)
+  python3-numba   # the compiled kernels: the law (drape/law/kernel.py), the tools' contact
   python3-pytest python3-pytest-timeout python3-hypothesis
   python3-pytest-xdist   # the serial pass of scripts/run-tests.sh on both cores (-n 2)
   python3-venv python3-pip python3-setuptools python3-wheel
@@ -82,9 +82,9 @@ if [ "${DRAPE_LINT:-1}" = 1 ] \
   "$venv/bin/python" -m pip install -q "ruff==$ruff_version"
 fi
 
-# Compile the law's kernel now (numba caches it beside the installed module: about 20 s once),
-# so that the first job does not pay for it.
+# Compile the law's kernel and the tools' contact kernels now (numba caches them beside their
+# modules: about 20 s once), so that the first job does not pay for it.
 if [ "${DRAPE_WARM_UP:-1}" = 1 ]; then
-  (cd / && "$venv/bin/python" -c "import drape.law.kernel as k; k.warm_up()")
+  (cd / && "$venv/bin/python" -c "import drape.compiled; drape.compiled.warm_up()")
 fi
 (cd / && "$venv/bin/python" -c "import dolfinx, drape; print('drape install: ok, dolfinx', dolfinx.__version__, 'in', '$venv')")

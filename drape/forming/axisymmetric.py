@@ -1,9 +1,10 @@
-"""Exact tool surfaces of revolution about the z axis (hemisphere punch, die, holder; numpy only).
+"""Exact tool surfaces of revolution about the z axis (hemisphere punch, die, holder).
 
 A tool is an (r, z) :class:`Profile` of :class:`Segment` and :class:`Arc` pieces, running with
 the tool's material on its left; :class:`AxisymmetricSurface` answers the contact query
 (:mod:`drape.forming.tool_query`) exactly: the closest point of a surface of revolution lies in
-the point's meridian half-plane, so the 3-D problem is a 2-D closest point on the profile.
+the point's meridian half-plane, so the 3-D problem is a 2-D closest point on the profile,
+searched point by point in a loop compiled with numba (it runs at every residual).
 """
 
 from __future__ import annotations
@@ -12,9 +13,14 @@ import dataclasses
 import math
 from typing import Sequence
 
+import numba
 import numpy as np
 
 from drape.forming.tool_query import ContactQuery, tool_frame, unit
+
+jit = numba.njit(cache=True)
+#: kinds of profile piece in the compiled search
+SEGMENT, ARC = 0, 1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,14 +44,9 @@ class Segment:
         ends = np.array([self.start, self.end], dtype=float)
         return np.array([ends.min(axis=0), ends.max(axis=0)])
 
-    def closest(self, q: np.ndarray):
-        a, b = self.point(0), self.point(1)
-        ab = b - a
-        t = np.clip((q - a) @ ab / (ab @ ab), 0.0, 1.0)
-        c = a + t[:, None] * ab
-        n = np.array([ab[1], -ab[0]]) / math.hypot(*ab)
-        end = np.where(t <= 0.0, 0, np.where(t >= 1.0, 1, -1))
-        return c, np.broadcast_to(n, c.shape), end
+    def encoded(self) -> tuple[int, tuple]:
+        """(kind, parameters) of the compiled closest-point search (_closest_points)."""
+        return SEGMENT, (*self.start, *self.end, 0.0, 0.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,25 +86,10 @@ class Arc:
         centre = np.asarray(self.centre, dtype=float)
         return np.array([centre - self.radius, centre + self.radius])
 
-    def closest(self, q: np.ndarray):
-        centre = np.asarray(self.centre, dtype=float)
-        d = q - centre
-        angle = np.arctan2(d[:, 1], d[:, 0])
+    def encoded(self) -> tuple[int, tuple]:
+        """(kind, parameters) of the compiled closest-point search (_closest_points)."""
         lo, hi = sorted((self.start_angle, self.end_angle))
-        span = hi - lo
-        rel = np.mod(angle - lo, 2.0 * np.pi)
-        inside = rel <= span + 1e-15
-        # outside the arc's angular range: the nearer end point
-        p_lo = centre + self.radius * self._radial(lo)
-        p_hi = centre + self.radius * self._radial(hi)
-        nearer_lo = np.sum((q - p_lo) ** 2, axis=1) <= np.sum((q - p_hi) ** 2, axis=1)
-        angle = np.where(inside, lo + rel, np.where(nearer_lo, lo, hi))
-        radial = np.stack([np.cos(angle), np.sin(angle)], axis=1)
-        c = centre + self.radius * radial
-        n = radial if self.ccw else -radial
-        lo_end, hi_end = (0, 1) if self.ccw else (1, 0)
-        end = np.where(inside, -1, np.where(nearer_lo, lo_end, hi_end))
-        return c, n, end
+        return ARC, (*self.centre, self.radius, lo, hi, 1.0 if self.ccw else 0.0)
 
 
 Piece = Segment | Arc
@@ -163,6 +149,10 @@ class Profile:
         # its distance to the box away
         boxes = np.array([piece.bounds() for piece in self.pieces])
         self.box = np.array([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
+        encoded = [piece.encoded() for piece in self.pieces]
+        self._kinds = np.array([kind for kind, _ in encoded], dtype=np.int64)
+        self._parameters = np.array([parameters for _, parameters in encoded], dtype=float)
+        self._curvatures = np.array([piece.curvature() for piece in self.pieces])
 
     def sharp_corners(self) -> np.ndarray:
         """The (r, z) points where the profile turns sharply (edges of the tool's solid)."""
@@ -171,34 +161,105 @@ class Profile:
         return np.unique(np.array(corners).reshape(-1, 2), axis=0)
 
     def closest(self, q: np.ndarray):
-        """Closest point (N, 2), distance (N,), sign test normal (N, 2), normal (N, 2), index
-        of the piece and curvature of the profile there, for points q (N, 2) with r >= 0."""
-        best_d2 = np.full(q.shape[0], np.inf)
-        best_c = np.zeros_like(q)
-        best_n = np.zeros_like(q)
-        best_piece = np.zeros(q.shape[0], dtype=int)
-        best_end = np.full(q.shape[0], -1)
-        for i, piece in enumerate(self.pieces):
-            c, n, end = piece.closest(q)
-            d2 = np.sum((q - c) ** 2, axis=1)
-            better = d2 < best_d2
-            best_d2 = np.where(better, d2, best_d2)
-            best_c[better] = c[better]
-            best_n[better] = n[better]
-            best_piece[better] = i
-            best_end[better] = end[better]
-        at_end = best_end >= 0
-        which = np.clip(best_end, 0, 1)
-        test_normal = np.where(at_end[:, None], self._end_normal[best_piece, which], best_n)
-        sharp = at_end & self._end_sharp[best_piece, which]
-        dist = np.sqrt(best_d2)
-        sign = np.where(np.sum((q - best_c) * test_normal, axis=1) >= 0.0, 1.0, -1.0)
-        towards = (q - best_c) / np.where(dist > 0.0, dist, 1.0)[:, None]
-        use_direction = sharp & (dist > self.tol)
-        normal = np.where(use_direction[:, None], sign[:, None] * towards,
-                          np.where(sharp[:, None], test_normal, best_n))
-        curvature = np.array([p.curvature() for p in self.pieces])[best_piece]
-        return best_c, sign * dist, normal, best_piece, curvature
+        """Closest point (N, 2), signed distance (N,), normal (N, 2), index of the piece and
+        curvature of the profile there, for points q (N, 2) with r >= 0."""
+        q = np.ascontiguousarray(q, dtype=float)
+        c, distance, normal = np.empty_like(q), np.empty(q.shape[0]), np.empty_like(q)
+        piece = np.empty(q.shape[0], dtype=np.int64)
+        _closest_points(q, self._kinds, self._parameters, self._end_normal, self._end_sharp,
+                        self.tol, c, distance, normal, piece)
+        return c, distance, normal, piece, self._curvatures[piece]
+
+
+@jit
+def _on_piece(q0, q1, kind, g):
+    """Closest point (c0, c1) of (q0, q1) on one piece, its normal (n0, n1) and which end it
+    is (0, 1; -1 inside): a segment g = (a0, a1, b0, b1), an arc g = (centre0, centre1,
+    radius, lo, hi, ccw) with lo < hi its ends' polar angles."""
+    if kind == SEGMENT:
+        a0, a1, ab0, ab1 = g[0], g[1], g[2] - g[0], g[3] - g[1]
+        t = min(max(((q0 - a0) * ab0 + (q1 - a1) * ab1) / (ab0 * ab0 + ab1 * ab1), 0.0), 1.0)
+        length = math.hypot(ab0, ab1)
+        end = 0 if t <= 0.0 else (1 if t >= 1.0 else -1)
+        return a0 + t * ab0, a1 + t * ab1, ab1 / length, -ab0 / length, end
+    centre0, centre1, radius, lo, hi, ccw = g[0], g[1], g[2], g[3], g[4], g[5] > 0.5
+    rel = (math.atan2(q1 - centre1, q0 - centre0) - lo) % (2.0 * math.pi)
+    inside = rel <= (hi - lo) + 1e-15
+    lo0, lo1 = centre0 + radius * math.cos(lo), centre1 + radius * math.sin(lo)
+    hi0, hi1 = centre0 + radius * math.cos(hi), centre1 + radius * math.sin(hi)
+    nearer_lo = (q0 - lo0) ** 2 + (q1 - lo1) ** 2 <= (q0 - hi0) ** 2 + (q1 - hi1) ** 2
+    angle = lo + rel if inside else (lo if nearer_lo else hi)
+    radial0, radial1 = math.cos(angle), math.sin(angle)
+    sense = 1.0 if ccw else -1.0
+    if inside:
+        end = -1
+    elif nearer_lo:
+        end = 0 if ccw else 1
+    else:
+        end = 1 if ccw else 0
+    return (centre0 + radius * radial0, centre1 + radius * radial1, sense * radial0,
+            sense * radial1, end)
+
+
+@jit
+def _closest_one(q0, q1, kinds, parameters, end_normal, end_sharp, tol):
+    """Profile.closest at one point: the nearest piece (the first of equally near ones); the
+    sign from the piece's normal, or at a piece's end from the pseudo-normal of the two pieces
+    meeting there; at a sharp corner the normal is the direction to the point. Returns the
+    closest point, the signed distance, the normal and the piece."""
+    best, best_piece, best_end = math.inf, 0, -1
+    c0 = c1 = n0 = n1 = 0.0
+    for k in range(kinds.shape[0]):
+        p0, p1, m0, m1, end = _on_piece(q0, q1, kinds[k], parameters[k])
+        d2 = (q0 - p0) ** 2 + (q1 - p1) ** 2
+        if d2 < best:
+            best, best_piece, best_end = d2, k, end
+            c0, c1, n0, n1 = p0, p1, m0, m1
+    test0, test1, sharp = n0, n1, False
+    if best_end >= 0:
+        test0 = end_normal[best_piece, best_end, 0]
+        test1 = end_normal[best_piece, best_end, 1]
+        sharp = end_sharp[best_piece, best_end]
+    dist = math.sqrt(best)
+    sign = 1.0 if (q0 - c0) * test0 + (q1 - c1) * test1 >= 0.0 else -1.0
+    if sharp and dist > tol:
+        n0, n1 = sign * (q0 - c0) / dist, sign * (q1 - c1) / dist
+    elif sharp:
+        n0, n1 = test0, test1
+    return c0, c1, sign * dist, n0, n1, best_piece
+
+
+@jit
+def _closest_points(q, kinds, parameters, end_normal, end_sharp, tol, c, distance, normal,
+                    piece):
+    for i in range(q.shape[0]):
+        c[i, 0], c[i, 1], distance[i], normal[i, 0], normal[i, 1], piece[i] = _closest_one(
+            q[i, 0], q[i, 1], kinds, parameters, end_normal, end_sharp, tol)
+
+
+@jit
+def _query_points(points, shift, box, cutoff, first, first_normal, kinds, parameters,
+                  end_normal, end_sharp, tol, gap, normal, closest):
+    """AxisymmetricSurface.query at every point: the point's meridian half-plane (r, z) and
+    radial direction e_r (e_x on the axis), the closest point of the profile there (or, farther
+    than ``cutoff`` from the box, its first point), mapped back to 3-D."""
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0] - shift[0], points[i, 1] - shift[1], points[i, 2] - shift[2]
+        r = math.hypot(x, y)
+        e0, e1 = (1.0, 0.0) if r <= 0.0 else (x / r, y / r)
+        out_r = max(max(box[0, 0] - r, r - box[1, 0]), 0.0)
+        out_z = max(max(box[0, 1] - z, z - box[1, 1]), 0.0)
+        if out_r * out_r + out_z * out_z > cutoff * cutoff:
+            c0, c1, n0, n1 = first[0], first[1], first_normal[0], first_normal[1]
+            signed = math.sqrt((r - c0) ** 2 + (z - c1) ** 2)
+        else:
+            c0, c1, signed, n0, n1, _ = _closest_one(r, z, kinds, parameters, end_normal,
+                                                     end_sharp, tol)
+        gap[i] = signed
+        normal[i, 0], normal[i, 1], normal[i, 2] = n0 * e0, n0 * e1, n1
+        closest[i, 0] = c0 * e0 + shift[0]
+        closest[i, 1] = c0 * e1 + shift[1]
+        closest[i, 2] = c1 + shift[2]
 
 
 class AxisymmetricSurface:
@@ -222,26 +283,15 @@ class AxisymmetricSurface:
         all without a cutoff. A point farther from the box gets, in its meridian plane, the
         profile's first point as its closest point, that point's normal, and the distance to
         it as its gap: an upper bound of the true distance, which exceeds the cutoff."""
-        p, shift = tool_frame(points, offset)
-        q, e_r = self._meridian(p)
-        c = np.empty_like(q)
-        gap = np.empty(q.shape[0])
-        n = np.empty_like(q)
-        if cutoff is None:
-            near = slice(None)
-        else:
-            outside = np.maximum(np.maximum(self.profile.box[0] - q, q - self.profile.box[1]), 0.0)
-            far = np.einsum("ni,ni->n", outside, outside) > cutoff * cutoff
-            near = ~far
-            first = self.profile.pieces[0]
-            c[far] = first.point(0)
-            gap[far] = np.linalg.norm(q[far] - c[far], axis=1)
-            tangent = first.tangent(0)
-            n[far] = (tangent[1], -tangent[0])
-        c[near], gap[near], n[near], _, _ = self.profile.closest(q[near])
-        e_z = np.array([0.0, 0.0, 1.0])
-        normal = n[:, :1] * e_r + n[:, 1:] * e_z
-        closest = c[:, :1] * e_r + c[:, 1:] * e_z + shift
+        points = np.ascontiguousarray(points, dtype=float)
+        _, shift = tool_frame(points, offset)
+        profile, first = self.profile, self.profile.pieces[0]
+        tangent = first.tangent(0)
+        gap, normal, closest = np.empty(len(points)), np.empty_like(points), np.empty_like(points)
+        _query_points(points, shift, profile.box, math.inf if cutoff is None else float(cutoff),
+                      first.point(0), np.array([tangent[1], -tangent[0]]), profile._kinds,
+                      profile._parameters, profile._end_normal, profile._end_sharp, profile.tol,
+                      gap, normal, closest)
         return ContactQuery(gap, normal, closest)
 
     def principal_curvatures(self, points, offset=None) -> tuple[np.ndarray, np.ndarray]:
@@ -253,3 +303,12 @@ class AxisymmetricSurface:
         with np.errstate(divide="ignore", invalid="ignore"):
             parallel = np.where(c[:, 0] > self.profile.tol, np.abs(n[:, 0]) / c[:, 0], meridian)
         return meridian, parallel
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the closest-point kernels: one query of a flat
+    profile with an arc."""
+    surface = AxisymmetricSurface(Profile([Arc((0.0, 1.0), 1.0, -0.5 * math.pi, 0.0),
+                                           Segment((1.0, 1.0), (0.0, 1.0))]))
+    surface.query(np.zeros((1, 3)), cutoff=1.0)
+    surface.principal_curvatures(np.zeros((1, 3)))

@@ -1,5 +1,6 @@
 """Contact of the membrane with rigid tools: penalty normal law and regularised Coulomb friction,
-pointwise and vectorised (numpy only), with their consistent tangents.
+with their consistent tangents, one point at a time compiled with numba (the loop over a
+forming job's quadrature points runs at every residual).
 
 At each quadrature point the finite-element layer supplies, from the current position, the
 tool's gap g and unit normal n (pointing away from the tool, see :mod:`drape.forming.surfaces`) and
@@ -43,6 +44,7 @@ import dataclasses
 import math
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 from drape.config import non_negative, positive, setting
@@ -59,6 +61,8 @@ DEFAULT_PENALTY_FACTOR = 1.0
 DEFAULT_SMOOTHING_FACTOR = 0.05
 
 SEPARATED, STICK, SLIP = 0, 1, 2
+
+jit = numba.njit(cache=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,14 +139,28 @@ def normal_pressure(gap, penalty, smoothing=0.0):
     """Contact pressure p(g) (N/mm²) and its stiffness -dp/dg (N/mm³) at N points: the plain
     penalty for ``smoothing`` g0 = 0, else the C1 law of the module docstring."""
     g = np.asarray(gap, dtype=float)
-    eps, g0 = penalty, smoothing
+    eps = np.broadcast_to(np.asarray(penalty, dtype=float), g.shape).ravel()
+    p, stiffness = np.empty(g.size), np.empty(g.size)
+    _pressures(g.ravel(), eps, float(smoothing), p, stiffness)
+    return p.reshape(g.shape), stiffness.reshape(g.shape)
+
+
+@jit
+def _pressure(g, eps, g0):
+    """p(g) and -dp/dg at one point (normal_pressure)."""
     if g0 <= 0.0:
-        return np.where(g < 0.0, -eps * g, 0.0), np.where(g < 0.0, eps, 0.0)
-    near = (g >= 0.0) & (g < g0)
-    p = np.where(g < 0.0, eps * (0.5 * g0 - g),
-                 np.where(near, eps * (g0 - g) ** 2 / (2.0 * g0), 0.0))
-    stiffness = np.where(g < 0.0, eps, np.where(near, eps * (g0 - g) / g0, 0.0))
-    return p, stiffness
+        return (-eps * g, eps) if g < 0.0 else (0.0, 0.0)
+    if g < 0.0:
+        return eps * (0.5 * g0 - g), eps
+    if g < g0:
+        return eps * (g0 - g) ** 2 / (2.0 * g0), eps * (g0 - g) / g0
+    return 0.0, 0.0
+
+
+@jit
+def _pressures(g, eps, g0, p, stiffness):
+    for i in range(g.shape[0]):
+        p[i], stiffness[i] = _pressure(g[i], eps[i], g0)
 
 
 def gap_for_pressure(pressure: float, penalty: float, smoothing: float = 0.0) -> float:
@@ -174,40 +192,58 @@ def traction(gap, normal, slip_increment, penalty, friction=DEFAULT_FRICTION,
     if n.shape != g.shape + (3,) or ds.shape != n.shape:
         raise ValueError(f"expected gap (N,), normal and slip (N, 3); got {g.shape}, {n.shape}, "
                          f"{ds.shape}")
-    p, stiffness = normal_pressure(g, eps, smoothing)
-    if smoothing <= 0.0 and touching_is_active:
-        stiffness = np.where(g <= 0.0, eps, 0.0)
-    # only the points the tool acts on (p > 0, or a stiffness at the contact's onset): the
-    # others have no traction and no tangent, and on a forming job they are most of the blank
-    on = np.nonzero((p > 0.0) | (stiffness > 0.0))[0]
     t = np.zeros(g.shape + (3,))
     tangent = np.zeros(g.shape + (3, 3))
+    p = np.empty(g.shape)
     state = np.full(g.shape, SEPARATED)
-    if on.size:
-        n_on, mu_on, k_on = n[on], mu[on], stiffness[on]
-        t[on], friction_tangent, phi, slip = _friction(p[on], n_on, ds[on], mu_on, delta[on])
-        # normal part of the tangent: dp/du = -(-dp/dg) n, acting on (n - mu phi)
-        tangent[on] = friction_tangent - k_on[:, None, None] * (
-            n_on - mu_on[:, None] * phi)[:, :, None] * n_on[:, None, :]
-        state[on] = np.where(p[on] > 0.0, np.where(slip, SLIP, STICK), SEPARATED)
+    _traction_points(g, n, ds, np.ascontiguousarray(eps), np.ascontiguousarray(mu),
+                     np.ascontiguousarray(delta), float(smoothing), bool(touching_is_active),
+                     t, tangent, p, state)
     return ContactResponse(t, tangent, p, state)
 
 
-def _friction(p, n, ds, mu, delta):
-    """t = p (n - mu phi) and the friction part of dt/du, -mu p D(phi) (I - n n), for pressure
-    p (N,), normal n (N, 3), slip increment ds (N, 3); also phi and the slipping mask."""
-    eye = np.eye(3)
-    proj = eye - n[:, :, None] * n[:, None, :]                       # I - n⊗n
-    ds_t = np.einsum("nij,nj->ni", proj, ds)
-    s = np.linalg.norm(ds_t, axis=1)
-    slip = (p > 0.0) & (s > delta)
-    scale = np.where(slip, s, delta)                                 # φ = Δs_T / scale
-    phi = ds_t / scale[:, None]
-    t = p[:, None] * (n - mu[:, None] * phi)
-    e = phi  # in slip, |φ| = 1: e = φ
-    dphi = np.where(slip[:, None, None], eye - e[:, :, None] * e[:, None, :], eye)
-    dphi = np.einsum("nij,njk->nik", dphi, proj) / scale[:, None, None]
-    return t, -(mu * p)[:, None, None] * dphi, phi, slip
+@jit
+def _traction_points(g, n, ds, eps, mu, delta, g0, touching_is_active, t, tangent, p, state):
+    """traction() at every point (t, tangent zero and state SEPARATED on entry): the points the
+    tool does not act on (no pressure, no stiffness; on a forming job most of the blank) are
+    left so. Per point, with P = I - n n, ds_T = P ds, s = |ds_T|, phi = ds_T / scale:
+    t = p (n - mu phi); dt/du = -mu p D(phi) P - k (n - mu phi) n, D(phi) = (I - phi phi) / s
+    sliding (s > delta), I / delta sticking."""
+    proj = np.empty((3, 3))
+    base = np.empty((3, 3))
+    ds_t = np.empty(3)
+    phi = np.empty(3)
+    for i in range(g.shape[0]):
+        pressure, stiffness = _pressure(g[i], eps[i], g0)
+        if g0 <= 0.0 and touching_is_active:
+            stiffness = eps[i] if g[i] <= 0.0 else 0.0
+        p[i] = pressure
+        if not (pressure > 0.0 or stiffness > 0.0):
+            continue
+        for j in range(3):
+            for k in range(3):
+                proj[j, k] = (1.0 if j == k else 0.0) - n[i, j] * n[i, k]
+        for j in range(3):
+            ds_t[j] = proj[j, 0] * ds[i, 0] + proj[j, 1] * ds[i, 1] + proj[j, 2] * ds[i, 2]
+        s = math.sqrt(ds_t[0] * ds_t[0] + ds_t[1] * ds_t[1] + ds_t[2] * ds_t[2])
+        slip = pressure > 0.0 and s > delta[i]
+        scale = s if slip else delta[i]
+        for j in range(3):
+            phi[j] = ds_t[j] / scale
+            t[i, j] = pressure * (n[i, j] - mu[i] * phi[j])
+        for j in range(3):
+            for k in range(3):
+                identity = 1.0 if j == k else 0.0
+                base[j, k] = identity - phi[j] * phi[k] if slip else identity
+        friction = -(mu[i] * pressure)
+        for j in range(3):
+            pushed = stiffness * (n[i, j] - mu[i] * phi[j])
+            for k in range(3):
+                dphi = (base[j, 0] * proj[0, k] + base[j, 1] * proj[1, k]
+                        + base[j, 2] * proj[2, k]) / scale
+                tangent[i, j, k] = friction * dphi - pushed * n[i, k]
+        if pressure > 0.0:
+            state[i] = SLIP if slip else STICK
 
 
 def elastic_slip(slip, normal, pressure, regularisation) -> np.ndarray:
@@ -234,3 +270,11 @@ def penetration_report(gap, weights=None) -> dict:
     if weights is not None:
         report["contact_area"] = float(np.sum(np.asarray(weights, dtype=float)[contact]))
     return report
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the contact law's kernels for the argument types
+    drape uses."""
+    normal = np.array([[0.0, 0.0, 1.0]])
+    traction(np.array([-0.01]), normal, np.zeros((1, 3)), 1.0, 0.2, 0.05, True, 0.1)
+    normal_pressure(np.array([-0.01]), 1.0, 0.1)
