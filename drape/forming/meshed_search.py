@@ -1,5 +1,6 @@
 """Exact closest points on a triangulated tool surface, with interpolated normals: k-d trees
-propose candidate triangles and lower bounds certify the answer (numpy and scipy).
+propose candidate triangles and lower bounds certify the answer (numpy and scipy; the
+point-triangle projection and the candidate lists' evaluation compiled with numba).
 
 :class:`MeshedSurface` answers the contact query of :mod:`drape.forming.tool_query` for a
 :class:`~drape.forming.triangulated.TriangleSurface` (gmsh-built and STEP tools); the search
@@ -8,11 +9,16 @@ and its accuracy are in ``docs/contact.md``.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
 from drape.forming.tool_query import ContactQuery, tool_frame, unit
 from drape.forming.triangulated import TriangleSurface
+
+#: numpy's rules for a division by zero (inf or nan, no exception): a degenerate triangle's
+#: projection is nan and falls to its edges, as in the reference
+jit = numba.njit(cache=True, error_model="numpy")
 
 
 class MeshedSurface:
@@ -94,48 +100,12 @@ class MeshedSurface:
 
     def _project(self, q, tris):
         """Squared distances (M,) and barycentric coordinates (M, 3) of the closest points of
-        triangles ``tris`` (M,) to points q (M, 3), paired row by row: the projection on the
-        triangle's plane where it falls inside the triangle, else the nearest of its three
-        edges' closest points (the closest point of a triangle to a point whose projection
-        lies outside it is on its boundary). Per pair only w = q - a, |w|^2, w.e0 and w.e1
-        are vectors; the rest is scalars of the triangle (precomputed), which makes it several
-        times cheaper than :func:`closest_point_on_triangles` (the reference, which it
-        matches to round-off)."""
-        w = q - self._a[tris]
-        ww = np.einsum("ij,ij->i", w, w)
-        s0 = np.einsum("ij,ij->i", w, self._e0[tris])
-        s1 = np.einsum("ij,ij->i", w, self._e1[tris])
-        g = self._gram[tris]
-        d00, d01, d11, det = g[:, 0], g[:, 1], g[:, 2], g[:, 3]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            v = (d11 * s0 - d01 * s1) / det
-            t = (d00 * s1 - d01 * s0) / det
-        inside = (v >= 0.0) & (t >= 0.0) & (v + t <= 1.0) & (det > 0.0)
-        bary = np.empty((tris.size, 3))
-        bary[:, 1], bary[:, 2] = v, t
-        bary[:, 0] = 1.0 - v - t
-        d2 = ww - v * s0 - t * s1
-        out = np.flatnonzero(~inside)
-        if out.size:
-            ww, s0, s1 = ww[out], s0[out], s1[out]
-            d00, d01, d11 = d00[out], d01[out], d11[out]
-            # edges a-b, a-c and b-c: the clamped parameter along each, and the squared distance
-            s2, d22 = s1 - s0 - d01 + d00, d11 - 2.0 * d01 + d00
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t0 = np.clip(np.where(d00 > 0.0, s0 / d00, 0.0), 0.0, 1.0)
-                t1 = np.clip(np.where(d11 > 0.0, s1 / d11, 0.0), 0.0, 1.0)
-                t2 = np.clip(np.where(d22 > 0.0, s2 / d22, 0.0), 0.0, 1.0)
-            edge = np.stack([ww - 2.0 * t0 * s0 + t0 * t0 * d00,
-                             ww - 2.0 * t1 * s1 + t1 * t1 * d11,
-                             ww - 2.0 * s0 + d00 - 2.0 * t2 * s2 + t2 * t2 * d22], axis=1)
-            which = np.argmin(edge, axis=1)
-            d2[out] = edge[np.arange(out.size), which]
-            zero = np.zeros(out.size)
-            tt = np.choose(which, [t0, t1, t2])
-            bary[out] = np.stack([np.choose(which, [1.0 - tt, 1.0 - tt, zero]),
-                                  np.choose(which, [tt, zero, 1.0 - tt]),
-                                  np.choose(which, [zero, tt, tt])], axis=1)
-        return np.maximum(d2, 0.0), bary
+        triangles ``tris`` (M,) to points q (M, 3), paired row by row (:func:`_project_one`)."""
+        q = np.ascontiguousarray(q, dtype=float)
+        tris = np.ascontiguousarray(tris, dtype=np.int64)
+        d2, bary = np.empty(tris.size), np.empty((tris.size, 3))
+        _project_pairs(q, tris, self._a, self._e0, self._e1, self._gram, d2, bary)
+        return d2, bary
 
     def _evaluate(self, p, rows, tris, best):
         """Exact distances for the pairs (p[rows[i]], triangle tris[i]); keeps the closest per
@@ -181,23 +151,16 @@ class MeshedSurface:
             moved = np.flatnonzero(np.linalg.norm(p - lists["origin"], axis=1) > m)
         if moved.size:
             self._relist(p, moved, cutoff)
-        start, tris = lists["start"], lists["tris"]
-        rows = np.repeat(np.arange(n), np.diff(start))
         # a point moved by delta since p0 is nearer than d0 + delta to its closest triangle at
         # p0, and any triangle farther than d0 + 2 delta from p0 is farther than that from it:
         # only the entries within d0 + 2 delta are evaluated (delta << margin within a step)
         delta = np.linalg.norm(p - lists["origin"], axis=1)
         bound = lists["d0"] + 2.0 * delta + 1e-9 * (1.0 + lists["d0"])
-        use = np.flatnonzero(lists["dist"] <= bound[rows])
-        rows, tris = rows[use], tris[use]
-        self.pairs_evaluated += rows.size
-        d2, bary = self._project(p[rows], tris)
-        first = np.searchsorted(rows, np.arange(n))       # every point keeps its p0 closest
-        least = np.minimum.reduceat(d2, first)
-        at = np.flatnonzero(d2 == least[rows])
-        _, pick = np.unique(rows[at], return_index=True)
-        pick = at[pick]
-        return tris[pick], bary[pick], np.sqrt(d2[pick])
+        tri, bary, d2 = np.zeros(n, dtype=np.int64), np.zeros((n, 3)), np.empty(n)
+        self.pairs_evaluated += _closest_listed(
+            np.ascontiguousarray(p), lists["start"], lists["tris"], lists["dist"], bound, self._a,
+            self._e0, self._e1, self._gram, tri, bary, d2)
+        return tri, bary, np.sqrt(d2)
 
     def _relist(self, p, moved, cutoff):
         """Search the points ``moved`` again and replace their lists (and origins)."""
@@ -308,3 +271,77 @@ class MeshedSurface:
         side = np.einsum("ij,ij->i", p - closest, normal)
         gap = np.where(side >= 0.0, dist, -dist)
         return ContactQuery(gap, normal, closest + shift)
+
+
+@jit
+def _project_one(q0, q1, q2, a, e0, e1, gram):
+    """Squared distance and barycentric coordinates of the closest point of one triangle (a, e0
+    = b - a, e1 = c - a, gram = (e0.e0, e0.e1, e1.e1, determinant)) to q: the projection on
+    the triangle's plane where it falls inside the triangle, else the nearest of its three
+    edges' closest points (the closest point of a triangle to a point whose projection lies
+    outside it is on its boundary). Only w = q - a, |w|^2, w.e0 and w.e1 depend on the pair,
+    which makes it several times cheaper than
+    :func:`~drape.forming.triangulated.closest_point_on_triangles` (the reference, which it
+    matches to round-off)."""
+    w0, w1, w2 = q0 - a[0], q1 - a[1], q2 - a[2]
+    ww = w0 * w0 + w1 * w1 + w2 * w2
+    s0 = w0 * e0[0] + w1 * e0[1] + w2 * e0[2]
+    s1 = w0 * e1[0] + w1 * e1[1] + w2 * e1[2]
+    d00, d01, d11, det = gram[0], gram[1], gram[2], gram[3]
+    v = (d11 * s0 - d01 * s1) / det
+    t = (d00 * s1 - d01 * s0) / det
+    if v >= 0.0 and t >= 0.0 and v + t <= 1.0 and det > 0.0:
+        return max(ww - v * s0 - t * s1, 0.0), 1.0 - v - t, v, t
+    # edges a-b, a-c and b-c: the clamped parameter along each, and the squared distance
+    s2, d22 = s1 - s0 - d01 + d00, d11 - 2.0 * d01 + d00
+    t0 = min(max(s0 / d00 if d00 > 0.0 else 0.0, 0.0), 1.0)
+    t1 = min(max(s1 / d11 if d11 > 0.0 else 0.0, 0.0), 1.0)
+    t2 = min(max(s2 / d22 if d22 > 0.0 else 0.0, 0.0), 1.0)
+    edge0 = ww - 2.0 * t0 * s0 + t0 * t0 * d00
+    edge1 = ww - 2.0 * t1 * s1 + t1 * t1 * d11
+    edge2 = ww - 2.0 * s0 + d00 - 2.0 * t2 * s2 + t2 * t2 * d22
+    if edge0 <= edge1 and edge0 <= edge2:
+        return max(edge0, 0.0), 1.0 - t0, t0, 0.0
+    if edge1 <= edge2:
+        return max(edge1, 0.0), 1.0 - t1, 0.0, t1
+    return max(edge2, 0.0), 0.0, 1.0 - t2, t2
+
+
+@jit
+def _project_pairs(q, tris, a, e0, e1, gram, d2, bary):
+    for i in range(tris.shape[0]):
+        k = tris[i]
+        d2[i], bary[i, 0], bary[i, 1], bary[i, 2] = _project_one(q[i, 0], q[i, 1], q[i, 2], a[k],
+                                                                 e0[k], e1[k], gram[k])
+
+
+@jit
+def _closest_listed(p, start, tris, dist, bound, a, e0, e1, gram, tri, bary, d2):
+    """Per point i, the closest of its listed triangles tris[start[i]:start[i + 1]] whose
+    listed distance is within bound[i] (the first of equally near ones; the list holds the
+    point's closest at p0, always within it): its triangle, barycentric coordinates and
+    squared distance. Returns the number of pairs evaluated."""
+    evaluated = 0
+    for i in range(p.shape[0]):
+        best = np.inf
+        for entry in range(start[i], start[i + 1]):
+            if dist[entry] > bound[i]:
+                continue
+            k = tris[entry]
+            evaluated += 1
+            squared, b0, b1, b2 = _project_one(p[i, 0], p[i, 1], p[i, 2], a[k], e0[k], e1[k],
+                                               gram[k])
+            if squared < best:
+                best = squared
+                tri[i], bary[i, 0], bary[i, 1], bary[i, 2] = k, b0, b1, b2
+        d2[i] = best
+    return evaluated
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the projection kernels: one listed query of a
+    two-triangle square."""
+    square = TriangleSurface("square", np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]),
+                             np.array([[0, 1, 2], [0, 2, 3]]), np.tile([0.0, 0.0, 1.0], (4, 1)))
+    MeshedSurface(square, margin=0.5).query(np.array([[0.2, 0.3, 0.1], [2.0, 2.0, 1.0]]),
+                                            cutoff=1.0)
