@@ -197,14 +197,10 @@ def root_of_phi(x_start, k, sigma, C12, mode, anchor, x_anchor, a, h, row, sy, Q
         else:
             high = x
         step = x - value / slope if slope != 0.0 else math.nan
-        # relative to gp itself: tau = 2 mu Ksh (C12 - sin gp) turns an error in gp into
-        # 2 mu Ksh times as much in tau. Newton converged: its step lands on x, which is an end
-        # of the bracket now, so this comes before the bracket's test (a bisection from there
-        # would halve the bracket down to round-off, some 50 iterations)
-        if abs(step - x) <= EPS * abs(step):
-            return step
         if not (min(low, high) < step < max(low, high)):
             step = 0.5 * (low + high)
+        # relative to gp itself: tau = 2 mu Ksh (C12 - sin gp) turns an error in gp into
+        # 2 mu Ksh times as much in tau
         if abs(step - x) <= EPS * abs(step) or abs(high - low) <= EPS * abs(step):
             return step
         x = step
