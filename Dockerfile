@@ -35,10 +35,10 @@ COPY drape /opt/drape/src/drape
 RUN DRAPE_VENV=/opt/drape/venv DRAPE_EDITABLE=0 DRAPE_LINT=0 DRAPE_WARM_UP=0 \
     /opt/drape/src/scripts/install.sh && rm -rf /var/lib/apt/lists/* /root/.cache/pip
 
-# numba's cache of the compiled kernels (the law's, the contact's) is keyed by its source files' mtimes, which an image layer
-# rounds to the second: a cache written in the install layer would be stale in the image (every
-# container would compile the kernels at its first job, about 25 s), so it is compiled here, on
-# top of the installed layer, and only here.
+# numba's cache of the compiled kernels (the law's, the contact's) is keyed by their source
+# files' mtimes, which an image layer rounds to the second: a cache written in the install layer
+# would be stale in the image (every container would compile the kernels at its first job, about
+# 25 s), so they are compiled here, on top of the installed layer, and only here.
 RUN cd / && python -c "import drape.compiled; drape.compiled.warm_up()"
 
 # The whole source stays in the image (configs/, docs/, tests/).

@@ -13,7 +13,7 @@
 # Environment: DRAPE_VENV (default: <repo>/.venv), DRAPE_EDITABLE=0 for a plain install,
 # DRAPE_LINT=0 to leave the linter out (an image that only runs jobs),
 # DRAPE_APT_ONLY=1 to stop after the Debian packages (the Dockerfile's first, cached layer),
-# DRAPE_WARM_UP=0 to leave the compiled kernels uncompiled (the Dockerfile compiles it in a later
+# DRAPE_WARM_UP=0 to leave the numba kernels uncompiled (the Dockerfile compiles them in a later
 # layer, where numba's cache stays valid),
 # DRAPE_PARAVIEW=1 to add Debian's ParaView 5.11 and Xvfb for `drape view` (138 packages, about 800 MB
 # more, so not by default; tests/test_paraview.py installs them itself when missing).
